@@ -1,0 +1,288 @@
+"""All configuration in one typed place.
+
+Each section of ``config.toml`` is a dataclass below; the dataclass defaults are the
+documented defaults (``tests/pipeline/test_config.py`` checks that ``config.toml`` agrees).
+Values come from, in increasing priority: these defaults, a TOML file, ``--set
+section.key=value`` overrides and the dedicated command-line flags.
+
+TOML has no null, so "not set" is spelled ``0`` or ``""`` where noted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import ConfigError
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_CONFIG_PATH = REPO_ROOT / "config.toml"
+
+
+@dataclass
+class CaptureConfig:
+    stride: int = 1
+    """Process every Nth frame; time stamps and frame indices stay those of the source."""
+    max_frames: int = 0
+    """Stop after this many processed frames (0 = all)."""
+    connect_attempts: int = 5
+    """Stream (RTSP/HTTP) open attempts before giving up, with exponential back-off."""
+    reconnect_attempts: int = 5
+    """Reconnects after a live stream drops mid-run before the run ends."""
+    backoff_s: float = 0.5
+    """First back-off delay; doubles after each failed attempt."""
+    read_timeout_s: float = 10.0
+    """A stream that delivers no frame for this long counts as dropped."""
+
+
+@dataclass
+class GroundConfig:
+    method: str = "model"
+    """'model': the network's ground output; 'height': pixels under height_threshold_m."""
+    height_threshold_m: float = 0.10
+    """Pixels lower than this count as ground (also the minimum object height)."""
+    probability_threshold: float = 0.5
+    """Ground-probability cut for the 'model' method."""
+
+
+@dataclass
+class HeightConfig:
+    model: str = ""
+    """ONNX model path ("" = the model shipped in stages/models/)."""
+    threads: int = 2
+    """ONNX Runtime intra-op threads."""
+
+
+@dataclass
+class MatchingConfig:
+    orb_features: int = 400
+    """ORB keypoints per frame."""
+    lk_window: int = 11
+    """Pyramidal Lucas-Kanade window in pixels of the (downscaled) matching image: small,
+    so a small object's flow is not dragged by the background around it."""
+    lk_levels: int = 2
+    """Pyramid levels for Lucas-Kanade."""
+    ransac_threshold_px: float = 3.0
+    """RANSAC reprojection threshold for the global-motion fit."""
+    max_hamming: int = 64
+    """ORB descriptor distance above which a match is rejected."""
+    downscale: int = 2
+    """Match on a 1/N image (points are reported in source pixels): 4x cheaper at N=2."""
+
+
+@dataclass
+class TrackingConfig:
+    background: str = "mog2"
+    """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
+    work_width: int = 320
+    """Background subtraction and blob finding run at this width in pixels (0 = source width)."""
+    height_percentile: float = 97.0
+    """Single-frame height = this percentile of the height map inside the blob (robust top)."""
+    min_area_px: int = 80
+    """Above-ground blobs smaller than this (in source pixels) are ignored."""
+    min_object_height_m: float = 0.5
+    """Blobs whose top is lower than this are clutter, not objects."""
+    min_hits: int = 3
+    """Detections in a row before a track is confirmed (reported)."""
+    max_misses: int = 30
+    """Frames without a detection before a track is deleted."""
+    iou_gate: float = 0.1
+    """Minimum IoU for an association."""
+    height_process_noise_m: float = 0.002
+    """Per-frame random walk of the height state: near zero, objects do not grow."""
+    height_measurement_noise_m: float = 0.15
+    """Base standard deviation of one frame's height measurement."""
+
+
+@dataclass
+class CameraConfig:
+    height_m: float = 0.0
+    """Camera height above the ground in metres (0 = unknown)."""
+    calibration: str = ""
+    """OpenCV-convention calibration JSON ("" = none)."""
+    fov_deg: float = 60.0
+    """Horizontal field of view assumed when no calibration is given."""
+    pitch_deg: float = 0.0
+    """Depression of the optical axis below the horizon (0 = unknown); with height_m, a full pose."""
+    roll_deg: float = 0.0
+    """Rotation about the optical axis, positive when the horizon's right end is lower."""
+    height_std_m: float = 0.0
+    """Uncertainty of height_m (self-calibration prints it; 0 = exact)."""
+    self_calibrated: bool = False
+    """height_m/pitch_deg/roll_deg came from `heightpipe calibrate`: heights are flagged as such."""
+    point_noise_px: float = 2.0
+    """Standard deviation of detected foot/top points, for the geometry height's noise."""
+
+
+@dataclass
+class OutputConfig:
+    directory: str = "recordings"
+    """Where `heightpipe run` writes when --out is not given."""
+    rerun: str = "save"
+    """'save' (.rrd file), 'spawn' (viewer + file), 'serve' (gRPC + web viewer + file) or 'off'."""
+    mcap: bool = True
+    """Write PREFIX.mcap."""
+    csv: bool = True
+    """Write PREFIX.tracks.csv."""
+    jpeg_quality: int = 85
+    """JPEG quality of the frames stored in the recordings."""
+    mcap_chunk_size: int = 1048576
+    """MCAP chunk size in bytes: smaller chunks lose less on a hard kill."""
+    flush_interval_s: float = 1.0
+    """Close the open MCAP chunk at least this often (source time), bounding loss on kill -9."""
+    height_map_scale: int = 2
+    """Store the height map at 1/N resolution in the recordings (1 = full)."""
+    progress: bool = True
+    """Show a progress bar on stderr."""
+
+
+@dataclass
+class SynthConfig:
+    seed: int = 0
+    """Root seed: same seed, same pixels."""
+    sequences: int = 20
+    frames: int = 60
+    width: int = 320
+    height: int = 240
+    fps: float = 10.0
+    workers: int = 2
+    preset: str = ""
+    """'paper' = the paper's five camera heights; "" = continuous 3.5-9.2 m."""
+    test_fraction: float = 0.2
+    """Share of layout seeds held out for testing (never trained on)."""
+
+
+@dataclass
+class TrainConfig:
+    seed: int = 0
+    """Seeds weights, data order and augmentation: same seed and data, same model."""
+    data: str = "data/synth_train"
+    """Synth dataset folder (its 'train' split is used; 'test' is held out for eval)."""
+    out: str = "runs/train"
+    """Run folder: checkpoint.pt, log.csv, loss.png."""
+    architecture: str = "light"
+    """'light' (CPU default, MobileNetV2-style) or 'paper' (ResNeXt-101 LapDepth)."""
+    backbone: str = ""
+    """Encoder override: 'mobilenetv2', 'resnext50_32x4d', 'resnext101_32x8d' ("" = the architecture's)."""
+    input_width: int = 320
+    input_height: int = 192
+    """Network input size (multiples of 16); every frame is resized to it, any aspect."""
+    steps: int = 30000
+    """Optimiser steps in total (a resumed run continues to this count)."""
+    batch_size: int = 4
+    """Pairs of consecutive frames per step (2x images)."""
+    lr: float = 1e-3
+    """Peak AdamW learning rate (linear warm-up, cosine decay to 5%)."""
+    weight_decay: float = 1e-4
+    si_lambda: float = 0.85
+    """Balance of the scale-invariant log loss (0 = plain log MSE, 1 = fully scale-invariant)."""
+    above_ground_weight: float = 1.0
+    """Weight of the extra scale-invariant term on pixels above 0.1 m (objects)."""
+    consistency_weight: float = 1.0
+    """Weight of the height consistency loss between matched points of frames t-1, t (m^2)."""
+    ground_weight: float = 0.2
+    """Weight of the ground-plane cross-entropy."""
+    target: str = "relative"
+    """'relative' (height / camera height, scale-free) or 'metres'."""
+    matcher: str = "lk"
+    """Feature matches for the consistency loss: 'lk' (Lucas-Kanade tracks) or 'orb'."""
+    max_matches: int = 64
+    """Matches per frame pair used by the consistency loss."""
+    checkpoint_every: int = 200
+    """Steps between checkpoints (and log/plot refreshes)."""
+    threads: int = 2
+    """Torch CPU threads."""
+
+
+@dataclass
+class BatchConfig:
+    workers: int = 0
+    """Parallel videos (0 = one per core)."""
+    engine: str = "local"
+    """'local' process pool or 'ray'."""
+
+
+@dataclass
+class Config:
+    capture: CaptureConfig = field(default_factory=CaptureConfig)
+    ground: GroundConfig = field(default_factory=GroundConfig)
+    height: HeightConfig = field(default_factory=HeightConfig)
+    matching: MatchingConfig = field(default_factory=MatchingConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    synth: SynthConfig = field(default_factory=SynthConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    batch: BatchConfig = field(default_factory=BatchConfig)
+
+
+def _coerce(where: str, value: Any, annotation: Any) -> Any:
+    """Check one TOML value against its dataclass annotation (ints widen to floats)."""
+    if annotation is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    origin = typing.get_origin(annotation)
+    if origin is list:
+        (item_type,) = typing.get_args(annotation)
+        if not isinstance(value, list):
+            raise ConfigError(f"{where} must be a list, got {value!r}")
+        return [_coerce(f"{where}[{i}]", v, item_type) for i, v in enumerate(value)]
+    if annotation is int and isinstance(value, bool):
+        raise ConfigError(f"{where} must be an integer, got {value!r}")
+    if not isinstance(value, annotation):
+        raise ConfigError(f"{where} must be {annotation.__name__}, got {type(value).__name__} {value!r}")
+    return value
+
+
+def _apply(config: Config, table: dict[str, Any], source: str) -> None:
+    sections = {f.name: f for f in dataclasses.fields(Config)}
+    for section_name, values in table.items():
+        if section_name not in sections:
+            raise ConfigError(f"unknown config section [{section_name}] in {source} "
+                              f"(known: {', '.join(sections)})")
+        if not isinstance(values, dict):
+            raise ConfigError(f"[{section_name}] in {source} must be a table")
+        section = getattr(config, section_name)
+        hints = typing.get_type_hints(type(section))
+        for key, value in values.items():
+            if key not in hints:
+                raise ConfigError(f"unknown config key '{section_name}.{key}' in {source} "
+                                  f"(known: {', '.join(hints)})")
+            setattr(section, key, _coerce(f"{section_name}.{key} in {source}", value, hints[key]))
+
+
+def parse_override(text: str) -> dict[str, Any]:
+    """Turn ``section.key=value`` (value in TOML syntax, bare words as strings) into a table."""
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise ConfigError(f"override {text!r} must look like section.key=value")
+    dotted, raw = text.split("=", 1)
+    section, key = dotted.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return {section: {key: value}}
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
+    """Defaults, then ``path`` (or ./config.toml, or the repository's), then overrides."""
+    config = Config()
+    if path is None:
+        for candidate in (Path.cwd() / "config.toml", DEFAULT_CONFIG_PATH):
+            if candidate.is_file():
+                path = candidate
+                break
+    elif not Path(path).is_file():
+        raise ConfigError(f"config file not found: {path}")
+    if path is not None:
+        try:
+            table = tomllib.loads(Path(path).read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{path} is not valid TOML: {exc}") from None
+        _apply(config, table, str(path))
+    for text in overrides or []:
+        _apply(config, parse_override(text), f"--set {text}")
+    return config

@@ -1,0 +1,122 @@
+"""What flows between stages: one ``FramePacket`` per processed frame.
+
+Each stage fills in its own fields and leaves the rest alone, so a sink can log whatever
+the stages before it produced. Images are NumPy arrays in source resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# Coarse object classes reported by the tracker (and used in CSV/MCAP records).
+OBJECT_CLASSES = ("other", "person", "cyclist", "vehicle")
+
+
+@dataclass
+class Frame:
+    index: int
+    """0-based index of the frame in the source (counts frames skipped by --stride)."""
+    time_s: float
+    """Capture time in seconds from the container/stream time stamps, from the source start."""
+    image: np.ndarray
+    """BGR uint8, H x W x 3."""
+
+
+@dataclass
+class CameraInfo:
+    """What is known of the camera; fields are None where unknown."""
+
+    width: int
+    height: int
+    K: np.ndarray | None = None
+    """3x3 intrinsics of the (undistorted) image."""
+    dist: np.ndarray | None = None
+    """OpenCV distortion coefficients of the raw image."""
+    R: np.ndarray | None = None
+    """3x3 world-to-camera rotation (world z up, ground z = 0)."""
+    t: np.ndarray | None = None
+    """World-to-camera translation in metres: x_cam = R @ x_world + t."""
+    height_m: float | None = None
+    """Camera height above the ground plane."""
+    source: str = "none"
+    """Where the calibration came from: 'calibration', 'camera-height', 'self' or 'none'."""
+
+
+@dataclass
+class FeatureMatches:
+    """Points matched between the previous and this frame (ORB + pyramidal LK, RANSAC-filtered)."""
+
+    prev_pts: np.ndarray
+    """N x 2 float32 pixel positions in the previous frame."""
+    curr_pts: np.ndarray
+    """N x 2 float32 pixel positions in this frame."""
+    on_object: np.ndarray
+    """N bool: the point lies on an above-ground (moving) region, not the static background."""
+    camera_motion: np.ndarray = field(default_factory=lambda: np.eye(2, 3, dtype=np.float32))
+    """2x3 affine of the static background from the previous to this frame (shake)."""
+
+
+@dataclass
+class Detection:
+    """One object candidate in one frame, before tracking."""
+
+    box: tuple[float, float, float, float]
+    """x, y, w, h in source pixels."""
+    height_m: float
+    """Single-frame height estimate (robust top of the object's height map)."""
+    score: float = 1.0
+    cls: str = "other"
+    foot_xy: tuple[float, float] | None = None
+    """Image point where the object touches the ground."""
+    top_xy: tuple[float, float] | None = None
+    """Image point of the object's top."""
+    height_noise_m: float = 0.15
+    """Standard deviation the tracker should assume for height_m this frame."""
+    touches_border: bool = False
+    geometry_height_m: float | None = None
+    """Second measurement: height from foot and top points through the calibrated camera."""
+    geometry_noise_m: float | None = None
+    ground_xy_m: tuple[float, float] | None = None
+    """Foot point on the ground plane in world metres (calibrated cameras only)."""
+    mask: np.ndarray | None = None
+    """Bool mask of the object's pixels inside its box (box-sized), where the extractor has one."""
+
+
+@dataclass
+class Track:
+    """A confirmed or tentative object track after this frame's update."""
+
+    track_id: int
+    box: tuple[float, float, float, float]
+    cls: str
+    height_m: float
+    height_std_m: float
+    score: float = 1.0
+    confirmed: bool = False
+    ground_xy_m: tuple[float, float] | None = None
+    """Ground position in metres (world x, y) where the camera is calibrated."""
+    height_source: str = "network"
+    """'network', 'geometry' or 'fused'."""
+    hits: int = 0
+    age: int = 0
+    updated: bool = True
+    """Whether a detection was associated this frame (else the box is predicted)."""
+
+
+@dataclass
+class FramePacket:
+    frame: Frame
+    camera: CameraInfo
+    ground_mask: np.ndarray | None = None
+    """H x W bool: ground plane."""
+    height_map: np.ndarray | None = None
+    """H x W float32 metres above the ground."""
+    foreground: np.ndarray | None = None
+    """H x W bool: moving pixels from background subtraction."""
+    matches: FeatureMatches | None = None
+    detections: list[Detection] = field(default_factory=list)
+    tracks: list[Track] = field(default_factory=list)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    """Per-stage wall time for this frame (for the summary and the benchmark)."""

@@ -1,0 +1,198 @@
+"""``heightpipe replay FILE.mcap [--save OUT.rrd]``: an MCAP recording in the rerun viewer.
+
+rerun opens our MCAP files itself but draws neither the track boxes (foxglove
+ImageAnnotations) nor the per-track height plots (custom protobuf), and shows the height map
+as a plain image. Replay reads the MCAP and logs each frame through the same
+``RerunFrameLogger`` as ``heightpipe run``, so the result matches the live ``.rrd``.
+
+The file is read front to back with the linear reader, so an unfinished recording (killed
+writer, no summary) replays up to its last complete chunk, with a warning.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline.config import Config
+from pipeline.errors import HeightpipeError
+
+TOPICS = ("/tracks", "/camera/image", "/camera/calibration", "/camera/height", "/camera/ground",
+          "/camera/matches")
+"""What replay draws; /camera/annotations is redundant with /tracks (boxes are redrawn)."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("mcap", type=Path, metavar="FILE.mcap", help="recording written by `heightpipe run`")
+    parser.add_argument("--save", type=Path, metavar="OUT.rrd",
+                        help="write a .rrd file instead of opening the viewer (headless)")
+
+
+def main(args: argparse.Namespace, config: Config) -> int:
+    path: Path = args.mcap
+    if not path.is_file():
+        raise HeightpipeError(f"MCAP file not found: {path}")
+    if args.save is not None and not args.save.parent.is_dir():
+        raise HeightpipeError(f"output folder does not exist: {args.save.parent}")
+    result = replay_mcap(path, args.save)
+    target = args.save if args.save is not None else "the rerun viewer"
+    print(f"replayed {result.frames} frames from {path} to {target}", file=sys.stderr)
+    if result.error:
+        print(f"heightpipe: warning: {path} ends early ({result.error}); the recording was "
+              f"probably not closed: replayed the {result.frames} complete frames", file=sys.stderr)
+    return 0
+
+
+@dataclass
+class ReplayResult:
+    frames: int
+    error: str = ""
+    """Why reading stopped before the end of the file ("" = read to the end)."""
+
+
+@dataclass
+class _FrameMessages:
+    log_time: int
+    by_topic: dict[str, Any] = field(default_factory=dict)
+
+
+class _TruncatedMcap(Exception):
+    """Reading failed part-way: the file is cut off or corrupt from here on."""
+
+
+def replay_mcap(path: Path, save: Path | None) -> ReplayResult:
+    """Logs every frame of ``path`` to a new rerun recording: ``save`` (.rrd) or a spawned viewer."""
+    from stages.rerun_sink import (VIEWER_MEMORY_LIMIT, RerunFrameLogger, heightpipe_blueprint,
+                                   open_recording)
+
+    frames = _read_frames(path)
+    try:
+        first = next(frames)
+    except StopIteration:
+        raise HeightpipeError(f"{path} has no heightpipe frames (topics: {', '.join(TOPICS)})") from None
+    except _TruncatedMcap as exc:
+        raise HeightpipeError(f"cannot read MCAP {path}: {exc}") from None
+
+    rec = open_recording(path.stem)
+    if save is not None:
+        rec.save(save, default_blueprint=heightpipe_blueprint())
+    else:
+        rec.spawn(memory_limit=VIEWER_MEMORY_LIMIT, default_blueprint=heightpipe_blueprint())
+    logger = RerunFrameLogger(rec)
+    count, error = 0, ""
+    try:
+        frame = first
+        while frame is not None:
+            _log_frame(logger, frame, count, first.log_time)
+            count += 1
+            try:
+                frame = next(frames, None)
+            except _TruncatedMcap as exc:
+                error, frame = str(exc), None
+    finally:
+        rec.flush()
+        rec.disconnect()
+    return ReplayResult(frames=count, error=error)
+
+
+def _read_frames(path: Path) -> Iterator[_FrameMessages]:
+    """Messages grouped by log_time (one frame each), raising _TruncatedMcap on a read failure."""
+    from mcap.reader import NonSeekingReader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    with open(path, "rb") as stream:
+        reader = NonSeekingReader(stream, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        messages = reader.iter_decoded_messages(topics=TOPICS, log_time_order=False)
+        current: _FrameMessages | None = None
+        while True:
+            try:
+                _schema, channel, message, decoded = next(messages)
+            except StopIteration:
+                break
+            except Exception as exc:  # mcap, zstd, protobuf and struct errors on bad bytes
+                raise _TruncatedMcap(_describe_read_error(exc)) from None
+            if current is None or message.log_time != current.log_time:
+                if current is not None:
+                    yield current
+                current = _FrameMessages(message.log_time)
+            current.by_topic[channel.topic] = decoded
+        if current is not None:
+            yield current
+
+
+def _describe_read_error(exc: Exception) -> str:
+    from mcap.exceptions import EndOfFile, InvalidMagic
+
+    if isinstance(exc, InvalidMagic):
+        return "not an MCAP file (wrong magic bytes)"
+    if isinstance(exc, EndOfFile):
+        return "the file is cut off mid-record"
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time: int) -> None:
+    import numpy as np
+
+    from stages.sink_common import height_to_mm
+    from stages.track_record import tracks_from_record
+
+    messages = frame.by_topic
+    record = messages.get("/tracks")
+    if record is not None:
+        logger.begin_frame(record.frame_index, record.time_s)
+    else:  # not written by heightpipe: number the frames and time them from the first
+        logger.begin_frame(ordinal, (frame.log_time - first_log_time) / 1e9)
+
+    if (image := messages.get("/camera/image")) is not None:
+        media_type = "image/png" if image.format.lower() == "png" else "image/jpeg"
+        logger.log_image(bytes(image.data), media_type)
+    if (calibration := messages.get("/camera/calibration")) is not None and any(calibration.K):
+        logger.log_camera(np.array(calibration.K, dtype=np.float64).reshape(3, 3),
+                          calibration.width, calibration.height)
+    if (height := messages.get("/camera/height")) is not None:
+        pixels = _raw_pixels(height)
+        logger.log_height_mm(pixels if pixels.dtype == np.uint16 else height_to_mm(pixels, 1))
+    if (ground := messages.get("/camera/ground")) is not None:
+        logger.log_ground_mask(_raw_pixels(ground) >= 128)
+    if (matches := messages.get("/camera/matches")) is not None:
+        logger.log_matches(*_match_arrays(matches))
+    if record is not None:
+        logger.log_tracks(tracks_from_record(record))
+    logger.end_frame()
+
+
+def _raw_pixels(image: Any) -> Any:
+    """foxglove.RawImage (16UC1/mono16 millimetres, mono8, 32FC1 metres) -> H x W array."""
+    import numpy as np
+
+    dtypes = {"16UC1": "<u2", "mono16": "<u2", "mono8": "u1", "8UC1": "u1", "32FC1": "<f4"}
+    if image.encoding not in dtypes:
+        raise HeightpipeError(f"unsupported RawImage encoding {image.encoding!r} in replay")
+    dtype = np.dtype(dtypes[image.encoding])
+    rows = np.frombuffer(image.data, dtype=np.uint8).reshape(image.height, image.step)
+    pixels = rows[:, :image.width * dtype.itemsize].copy().view(dtype)
+    return pixels.astype(dtype.newbyteorder("="), copy=False)
+
+
+def _match_arrays(annotations: Any) -> tuple[Any, Any, Any]:
+    """/camera/matches LINE_LISTs -> prev points, current points, on-object flags."""
+    import numpy as np
+
+    from stages.sink_common import MATCH_KIND_KEY
+
+    line_list = 4  # foxglove.PointsAnnotation.Type.LINE_LIST
+    prev, curr, on_object = [np.zeros((0, 2), np.float32)], [np.zeros((0, 2), np.float32)], [np.zeros(0, bool)]
+    for group in annotations.points:
+        if group.type != line_list:
+            continue
+        kind = next((item.value for item in group.metadata if item.key == MATCH_KIND_KEY), "")
+        points = [(p.x, p.y) for p in group.points]
+        pairs = np.array(points[:len(points) // 2 * 2], dtype=np.float32).reshape(-1, 2, 2)
+        prev.append(pairs[:, 0])
+        curr.append(pairs[:, 1])
+        on_object.append(np.full(len(pairs), kind == "object"))
+    return np.concatenate(prev), np.concatenate(curr), np.concatenate(on_object)

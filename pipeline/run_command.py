@@ -1,0 +1,67 @@
+"""`heightpipe run SOURCE`: process one video, image folder, stream or webcam."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from pipeline.config import Config
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("source", help="video file, image folder or glob, rtsp://… / http://… URL, or webcam index")
+    parser.add_argument("--out", metavar="PREFIX",
+                        help="output prefix: writes PREFIX.rrd, PREFIX.mcap, PREFIX.tracks.csv "
+                             "(default: recordings/<source name>; an existing folder means FOLDER/<source name>)")
+    parser.add_argument("--camera-height", type=float, metavar="M", help="camera height above the ground in metres")
+    parser.add_argument("--calibration", metavar="JSON", help="OpenCV-convention calibration file")
+    parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N processed frames")
+    parser.add_argument("--stride", type=int, metavar="N", help="process every Nth frame")
+    parser.add_argument("--rerun", choices=["spawn", "save", "serve", "off"], help="rerun output (default: save)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def apply_flags(args: argparse.Namespace, config: Config) -> None:
+    """Dedicated flags win over config.toml and --set."""
+    if args.camera_height is not None:
+        config.camera.height_m = args.camera_height
+    if args.calibration is not None:
+        config.camera.calibration = args.calibration
+    if args.max_frames is not None:
+        config.capture.max_frames = args.max_frames
+    if args.stride is not None:
+        config.capture.stride = args.stride
+    if args.rerun is not None:
+        config.output.rerun = args.rerun
+    if args.no_progress:
+        config.output.progress = False
+
+
+def default_prefix(source: str, out: str | None, config: Config) -> Path:
+    name = Path(source.rstrip("/")).stem or "stream"
+    if source.isdigit():
+        name = f"webcam{source}"
+    elif "://" in source:
+        name = "".join(c if c.isalnum() else "_" for c in source.split("://", 1)[1]).strip("_")[:60] or "stream"
+    if out is None:
+        return Path(config.output.directory) / name
+    out_path = Path(out)
+    if out.endswith("/") or out_path.is_dir():
+        return out_path / name
+    return out_path
+
+
+def main(args: argparse.Namespace, config: Config) -> int:
+    from pipeline.errors import ConfigError
+    from pipeline.runner import run_pipeline
+    from pipeline.summary import format_summary
+
+    apply_flags(args, config)
+    if config.capture.stride < 1:
+        raise ConfigError("capture.stride must be at least 1")
+    summary = run_pipeline(args.source, config, default_prefix(args.source, args.out, config))
+    print(format_summary(summary), file=sys.stderr)
+    if summary.interrupted:
+        return 130
+    return 0

@@ -1,0 +1,200 @@
+"""The pipeline, in the order the README lists it.
+
+open the source → for each frame: ground segmentation → height inference → feature
+matching → object extraction → (geometry) → tracking → sinks → close the sinks.
+
+Sinks are closed whatever happens (end of video, Ctrl-C, SIGTERM, an exception), so a
+stopped run still leaves a readable MCAP, .rrd and CSV of everything processed.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections import defaultdict
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+from pipeline.config import Config
+from pipeline.packets import CameraInfo, FramePacket
+from stages.capture import CaptureStats, FrameSource, open_source
+
+
+@dataclass
+class RunOutputs:
+    rrd: Path | None
+    mcap: Path | None
+    csv: Path | None
+
+    def existing(self) -> list[Path]:
+        return [p for p in (self.rrd, self.mcap, self.csv) if p is not None]
+
+
+@dataclass
+class RunSummary:
+    source: str
+    frames: int = 0
+    capture: CaptureStats = field(default_factory=CaptureStats)
+    confirmed_tracks: dict[int, tuple[str, float, float]] = field(default_factory=dict)
+    """track id -> (class, last height m, last std m) of every track ever confirmed."""
+    stage_ms: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+    wall_s: float = 0.0
+    interrupted: str | None = None
+    camera_source: str = "none"
+    outputs: RunOutputs | None = None
+
+    @property
+    def fps(self) -> float:
+        return self.frames / self.wall_s if self.wall_s > 0 else 0.0
+
+
+class StopRequested(Exception):
+    """Raised from the SIGTERM handler so the run unwinds through its finally blocks."""
+
+
+@contextmanager
+def _sigterm_stops_run() -> Iterator[None]:
+    def handler(signum, _frame):
+        raise StopRequested(signal.Signals(signum).name)
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (e.g. a batch worker thread): leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def output_paths(prefix: Path, config: Config) -> RunOutputs:
+    return RunOutputs(
+        rrd=prefix.with_name(prefix.name + ".rrd") if config.output.rerun != "off" else None,
+        mcap=prefix.with_name(prefix.name + ".mcap") if config.output.mcap else None,
+        csv=prefix.with_name(prefix.name + ".tracks.csv") if config.output.csv else None,
+    )
+
+
+def build_camera(config: Config, width: int, height: int) -> CameraInfo:
+    from stages.calibration import camera_for_run
+
+    return camera_for_run(config.camera, width, height)
+
+
+def build_stages(config: Config, camera: CameraInfo) -> list[tuple[str, object]]:
+    from stages.calibration import has_distortion, is_calibrated
+    from stages.feature_matching import FeatureMatcher
+    from stages.geometry import GeometryMeasurer
+    from stages.ground_segmentation import GroundSegmenter
+    from stages.height_inference import HeightEstimator
+    from stages.heightnet_model import HeightNetModel
+    from stages.object_extraction import ObjectExtractor
+    from stages.tracking import TrackingStage
+    from stages.undistortion import Undistorter
+
+    model = HeightNetModel(config.height.model, config.height.threads)
+    stages: list[tuple[str, object]] = []
+    if has_distortion(camera):
+        stages.append(("undistortion", Undistorter(camera)))
+    stages += [
+        ("ground", GroundSegmenter(config.ground, model)),
+        ("height", HeightEstimator(model)),
+        ("matching", FeatureMatcher(config.matching, config.ground)),
+        ("objects", ObjectExtractor(config.tracking, config.ground)),
+    ]
+    if is_calibrated(camera):
+        stages.append(("geometry", GeometryMeasurer(config.camera)))
+    stages.append(("tracking", TrackingStage(config.tracking)))
+    return stages
+
+
+def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> list[tuple[str, object]]:
+    sinks: list[tuple[str, object]] = []
+    if outputs.rrd is not None:
+        from stages.rerun_sink import RerunSink
+
+        sinks.append(("rerun", RerunSink(outputs.rrd, config.output.rerun, config.output, recording_name)))
+    if outputs.mcap is not None:
+        from stages.mcap_sink import McapSink
+
+        sinks.append(("mcap", McapSink(outputs.mcap, config.output)))
+    if outputs.csv is not None:
+        from stages.csv_sink import TrackCsvSink
+
+        sinks.append(("csv", TrackCsvSink(outputs.csv)))
+    return sinks
+
+
+def _progress(source: FrameSource, config: Config):
+    from tqdm import tqdm
+
+    total = source.stats.expected
+    if total is not None:
+        total = -(-total // max(1, config.capture.stride))
+        if config.capture.max_frames:
+            total = min(total, config.capture.max_frames)
+    return tqdm(total=total, unit="frame", disable=not config.output.progress, dynamic_ncols=True,
+                desc=Path(source.description).name[:30])
+
+
+def run_pipeline(source_spec: str, config: Config, prefix: Path) -> RunSummary:
+    """Process one source end to end and return what happened; outputs go to PREFIX.*"""
+    source = open_source(source_spec, config.capture)
+    summary = RunSummary(source=source.description, capture=source.stats)
+    prefix.parent.mkdir(parents=True, exist_ok=True)
+    outputs = output_paths(prefix, config)
+    summary.outputs = outputs
+    width, height = source.size
+    camera = build_camera(config, width, height)
+    summary.camera_source = camera.source
+    stages = build_stages(config, camera)
+    sinks = build_sinks(outputs, config, prefix.name)
+    progress = _progress(source, config)
+    start = time.perf_counter()
+    try:
+        with _sigterm_stops_run():
+            for frame in source.frames():
+                packet = FramePacket(frame=frame, camera=camera)
+                for name, stage in stages:
+                    t0 = time.perf_counter()
+                    packet = stage.process(packet)
+                    packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
+                for name, sink in sinks:
+                    t0 = time.perf_counter()
+                    sink.write(packet)
+                    packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
+                for name, ms in packet.timings_ms.items():
+                    summary.stage_ms[name] += ms
+                summary.frames += 1
+                for track in packet.tracks:
+                    if track.confirmed:
+                        summary.confirmed_tracks[track.track_id] = (track.cls, track.height_m, track.height_std_m)
+                progress.update(1)
+                progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
+    except KeyboardInterrupt:
+        summary.interrupted = "SIGINT"
+    except StopRequested as stop:
+        summary.interrupted = str(stop)
+    finally:
+        summary.wall_s = time.perf_counter() - start
+        progress.close()
+        _close_all([stage for _, stage in stages + sinks] + [source])
+    return summary
+
+
+def _close_all(parts: list[object]) -> None:
+    """Close every part even if one fails, so one broken sink cannot cost the others' files."""
+    errors = []
+    for part in parts:
+        close = getattr(part, "close", None)
+        if close is None:
+            continue
+        try:
+            close()
+        except Exception as exc:  # re-raised below, after the others are closed
+            errors.append(exc)
+    if errors:
+        raise errors[0]

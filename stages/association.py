@@ -1,0 +1,58 @@
+"""Association costs between predicted tracks and detections, and the Hungarian assignment.
+
+Every cost here is a (tracks x detections) matrix; forbidden pairs are marked in a boolean
+``allowed`` matrix rather than with magic large numbers, so the assignment never picks one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+Box = tuple[float, float, float, float]
+
+
+def iou_matrix(boxes_a: list[Box] | np.ndarray, boxes_b: list[Box] | np.ndarray) -> np.ndarray:
+    """Intersection over union of every box in ``a`` with every box in ``b`` (x, y, w, h)."""
+    a = np.asarray(boxes_a, dtype=float).reshape(-1, 4)
+    b = np.asarray(boxes_b, dtype=float).reshape(-1, 4)
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((len(a), len(b)))
+    ax0, ay0 = a[:, 0:1], a[:, 1:2]
+    ax1, ay1 = ax0 + a[:, 2:3], ay0 + a[:, 3:4]
+    bx0, by0 = b[:, 0], b[:, 1]
+    bx1, by1 = bx0 + b[:, 2], by0 + b[:, 3]
+    inter_w = np.clip(np.minimum(ax1, bx1) - np.maximum(ax0, bx0), 0, None)
+    inter_h = np.clip(np.minimum(ay1, by1) - np.maximum(ay0, by0), 0, None)
+    inter = inter_w * inter_h
+    union = a[:, 2:3] * a[:, 3:4] + b[:, 2] * b[:, 3] - inter
+    return np.where(union > 0, inter / np.maximum(union, 1e-9), 0.0)
+
+
+@dataclass
+class Assignment:
+    matches: list[tuple[int, int]]
+    """(track row, detection column) pairs."""
+    unmatched_tracks: list[int]
+    unmatched_detections: list[int]
+
+
+def assign(cost: np.ndarray, allowed: np.ndarray) -> Assignment:
+    """Minimum-cost one-to-one assignment (Hungarian) among the allowed pairs only."""
+    n_tracks, n_detections = cost.shape
+    matches: list[tuple[int, int]] = []
+    if n_tracks and n_detections and allowed.any():
+        # Forbidden pairs get a cost above any allowed total, then are dropped if still chosen.
+        finite_cost = np.where(allowed, cost, 0.0)
+        blocked = float(np.abs(finite_cost).sum() + 1.0) * 2.0
+        rows, cols = linear_sum_assignment(np.where(allowed, cost, blocked))
+        matches = [(int(r), int(c)) for r, c in zip(rows, cols) if allowed[r, c]]
+    matched_rows = {r for r, _ in matches}
+    matched_cols = {c for _, c in matches}
+    return Assignment(
+        matches=matches,
+        unmatched_tracks=[r for r in range(n_tracks) if r not in matched_rows],
+        unmatched_detections=[c for c in range(n_detections) if c not in matched_cols],
+    )

@@ -1,0 +1,277 @@
+"""Frame capture: video files, image folders or globs, RTSP/HTTP streams and webcams.
+
+Every source yields ``Frame``s with the source's own frame index and the container's or
+stream's time stamp, and keeps ``CaptureStats`` so that frames that fail to decode are
+counted and reported instead of silently skipped.
+"""
+
+from __future__ import annotations
+
+import glob
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import cv2
+import numpy as np
+
+from pipeline.config import CaptureConfig
+from pipeline.errors import SourceError
+from pipeline.packets import Frame
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"}
+STREAM_PREFIXES = ("rtsp://", "rtsps://", "http://", "https://", "rtmp://", "udp://", "tcp://")
+# A video read failing this many times in a row is taken as its end (truncated or corrupt tail).
+MAX_CONSECUTIVE_DECODE_FAILURES = 25
+# Markers _read() yields in place of an image.
+SKIPPED = np.zeros((0, 0, 3), np.uint8)
+FAILED = np.zeros((0, 0, 3), np.uint8)
+
+
+@dataclass
+class CaptureStats:
+    decoded: int = 0
+    """Frames decoded (processed or skipped by stride)."""
+    failed: int = 0
+    """Frames (or images) that could not be decoded."""
+    reconnects: int = 0
+    expected: int | None = None
+    """Frame count the container header claims, where it has one (not always right)."""
+    reached_end: bool = False
+    """The source ran out (rather than the run stopping early)."""
+
+    def summary(self) -> str:
+        text = f"{self.decoded} frames decoded"
+        if self.failed:
+            text += f", {self.failed} failed to decode"
+        if self.reached_end and self.expected is not None and self.expected != self.decoded:
+            text += f" (header claims {self.expected})"
+        if self.reconnects:
+            text += f", {self.reconnects} stream reconnects"
+        return text
+
+
+class FrameSource:
+    """Base class: subclasses implement ``_read()`` yielding (index, time_s, image|None)."""
+
+    description = "source"
+
+    def __init__(self, config: CaptureConfig):
+        self.config = config
+        self.stats = CaptureStats()
+        self.fps: float | None = None
+        self.size: tuple[int, int] | None = None
+        """(width, height) of the frames, known after opening."""
+
+    def frames(self) -> Iterator[Frame]:
+        """Frames after stride and max_frames, counting decoded and failed ones."""
+        emitted = 0
+        for index, time_s, image in self._read():
+            if image is FAILED:
+                self.stats.failed += 1
+                continue
+            self.stats.decoded += 1
+            if image is SKIPPED:
+                continue
+            yield Frame(index=index, time_s=time_s, image=_ensure_bgr(image))
+            emitted += 1
+            if self.config.max_frames and emitted >= self.config.max_frames:
+                return
+        self.stats.reached_end = True
+
+    def _skip(self, index: int) -> bool:
+        return index % max(1, self.config.stride) != 0
+
+    def _read(self) -> Iterator[tuple[int, float, np.ndarray]]:
+        """Yield (source index, time in s, image, or SKIPPED for stride, or FAILED)."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+def _ensure_bgr(image: np.ndarray) -> np.ndarray:
+    if image.ndim == 2:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    if image.shape[2] == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    return image
+
+
+class VideoFileSource(FrameSource):
+    def __init__(self, path: Path, config: CaptureConfig):
+        super().__init__(config)
+        self.description = str(path)
+        if not path.exists():
+            raise SourceError(f"no such file: {path}")
+        if path.is_dir():
+            raise SourceError(f"{path} is a folder without images")
+        self.capture = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+        if not self.capture.isOpened():
+            raise SourceError(f"{path} is not a readable video (OpenCV/FFmpeg cannot open it)")
+        self.fps = self.capture.get(cv2.CAP_PROP_FPS) or None
+        count = int(self.capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        self.stats.expected = count if count > 0 else None
+        ok, first = self.capture.read()
+        if not ok or first is None:
+            self.capture.release()
+            raise SourceError(f"{path} is not a readable video (no frame decodes)")
+        self._first = first
+        self.size = (first.shape[1], first.shape[0])
+
+    def _timestamp(self, index: int) -> float:
+        """Presentation time from the container; index/fps only if it has none."""
+        msec = self.capture.get(cv2.CAP_PROP_POS_MSEC)
+        if msec > 0 or index == 0:
+            return msec / 1000.0
+        return index / self.fps if self.fps else float(index)
+
+    def _read(self) -> Iterator[tuple[int, float, np.ndarray]]:
+        index = 0
+        yield index, self._timestamp(index), self._first
+        self._first = None
+        failures_in_row = 0
+        while True:
+            index += 1
+            ok = self.capture.grab()
+            if ok:
+                failures_in_row = 0
+                if self._skip(index):
+                    yield index, self._timestamp(index), SKIPPED
+                    continue
+                ok, image = self.capture.retrieve()
+                yield index, self._timestamp(index), image if ok else FAILED
+                continue
+            # A failed grab is a corrupt frame or the end. Past the header's count, or after
+            # many failures in a row, it is the end; frames the header still promised then
+            # count as failed rather than vanishing from the report.
+            failures_in_row += 1
+            expected = self.stats.expected or 0
+            if index >= expected:
+                return
+            if failures_in_row >= MAX_CONSECUTIVE_DECODE_FAILURES:
+                self.stats.failed += expected - index
+                return
+            yield index, 0.0, FAILED
+
+    def close(self) -> None:
+        self.capture.release()
+
+
+class ImageFolderSource(FrameSource):
+    """Images in name order; they carry no time stamps, so time = index / capture.image_fps."""
+
+    def __init__(self, paths: list[Path], description: str, config: CaptureConfig, fps: float):
+        super().__init__(config)
+        self.description = description
+        self.paths = paths
+        self.fps = fps
+        self.stats.expected = len(paths)
+        first = next((cv2.imread(str(p), cv2.IMREAD_COLOR) for p in paths[:5]), None)
+        if first is None:
+            raise SourceError(f"{description}: the first images cannot be decoded")
+        self.size = (first.shape[1], first.shape[0])
+
+    def _read(self) -> Iterator[tuple[int, float, np.ndarray]]:
+        for index, path in enumerate(self.paths):
+            if self._skip(index):
+                yield index, index / self.fps, SKIPPED
+                continue
+            image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            yield index, index / self.fps, FAILED if image is None else image
+
+
+Opener = Callable[[str], cv2.VideoCapture]
+
+
+def _open_stream(url: str, read_timeout_s: float) -> cv2.VideoCapture:
+    params = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, int(read_timeout_s * 1000),
+              cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(read_timeout_s * 1000)]
+    if url.isdigit():
+        return cv2.VideoCapture(int(url))
+    return cv2.VideoCapture(url, cv2.CAP_FFMPEG, params)
+
+
+class StreamSource(FrameSource):
+    """A live stream or webcam: bounded retries with back-off to open, reconnects on drops.
+
+    Time stamps are the stream's own where it has them, else wall-clock time since the
+    first frame (live sources have no other clock).
+    """
+
+    def __init__(self, url: str, config: CaptureConfig, opener: Opener | None = None,
+                 sleep: Callable[[float], None] = time.sleep):
+        super().__init__(config)
+        self.url = url
+        self.description = url if not url.isdigit() else f"webcam {url}"
+        self._opener = opener or (lambda u: _open_stream(u, config.read_timeout_s))
+        self._sleep = sleep
+        self.capture = self._connect(config.connect_attempts)
+        if self.capture is None:
+            raise SourceError(f"cannot open stream {self.description} after "
+                              f"{config.connect_attempts} attempts")
+
+    def _connect(self, attempts: int) -> cv2.VideoCapture | None:
+        delay = self.config.backoff_s
+        for attempt in range(max(1, attempts)):
+            capture = self._opener(self.url)
+            if capture is not None and capture.isOpened():
+                fps = capture.get(cv2.CAP_PROP_FPS)
+                self.fps = fps if fps and fps < 1000 else self.fps
+                return capture
+            if capture is not None:
+                capture.release()
+            if attempt + 1 < attempts:
+                self._sleep(delay)
+                delay *= 2
+        return None
+
+    def _read(self) -> Iterator[tuple[int, float, np.ndarray]]:
+        index = 0
+        start_wall = time.monotonic()
+        offset_s = 0.0  # stream clocks restart after a reconnect: keep time increasing
+        last_time = 0.0
+        while True:
+            ok, image = self.capture.read()
+            if ok and image is not None:
+                msec = self.capture.get(cv2.CAP_PROP_POS_MSEC)
+                stream_time = msec / 1000.0 if msec > 0 else None
+                time_s = (offset_s + stream_time) if stream_time is not None else time.monotonic() - start_wall
+                time_s = max(time_s, last_time)
+                last_time = time_s
+                if self.size is None:
+                    self.size = (image.shape[1], image.shape[0])
+                yield index, time_s, SKIPPED if self._skip(index) else image
+                index += 1
+                continue
+            self.capture.release()
+            if self.stats.reconnects >= self.config.reconnect_attempts:
+                return
+            self.stats.reconnects += 1
+            capture = self._connect(self.config.connect_attempts)
+            if capture is None:
+                return
+            self.capture = capture
+            offset_s = last_time
+
+    def close(self) -> None:
+        self.capture.release()
+
+
+def open_source(spec: str, config: CaptureConfig, image_fps: float = 10.0) -> FrameSource:
+    """Pick the source kind from the spec: URL, webcam index, folder, glob or video file."""
+    if spec.startswith(STREAM_PREFIXES) or spec.isdigit():
+        return StreamSource(spec, config)
+    if any(ch in spec for ch in "*?["):
+        paths = sorted(Path(p) for p in glob.glob(spec) if Path(p).suffix.lower() in IMAGE_SUFFIXES)
+        if not paths:
+            raise SourceError(f"no images match {spec}")
+        return ImageFolderSource(paths, spec, config, image_fps)
+    path = Path(spec)
+    if path.is_dir():
+        paths = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not paths:
+            raise SourceError(f"{path} is a folder without images")
+        return ImageFolderSource(paths, str(path), config, image_fps)
+    return VideoFileSource(path, config)

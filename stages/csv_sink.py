@@ -1,0 +1,41 @@
+"""PREFIX.tracks.csv: one row per confirmed track per processed frame.
+
+Flushed after every frame, so a crash or kill keeps every frame written before it.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+from pipeline.errors import HeightpipeError
+from pipeline.packets import FramePacket
+from stages.sink_common import confirmed
+
+CSV_HEADER = ("frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score",
+              "height_m", "height_std_m")
+
+
+class TrackCsvSink:
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        try:
+            self._file = open(self.path, "w", newline="", encoding="utf-8")
+        except OSError as exc:
+            raise HeightpipeError(f"cannot write {self.path}: {exc.strerror}") from None
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(CSV_HEADER)
+        self._file.flush()
+
+    def write(self, packet: FramePacket) -> None:
+        frame = packet.frame
+        for track in confirmed(packet.tracks):
+            x, y, w, h = track.box
+            self._writer.writerow((
+                frame.index, f"{frame.time_s:.4f}", track.track_id, track.cls,
+                f"{x:.1f}", f"{y:.1f}", f"{w:.1f}", f"{h:.1f}", f"{track.score:.3f}",
+                f"{track.height_m:.3f}", f"{track.height_std_m:.3f}"))
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()

@@ -1,0 +1,138 @@
+"""Feature matching between consecutive frames: ORB keypoints followed by pyramidal LK flow.
+
+Points are ORB corners of the previous frame, tracked into this frame with Lucas-Kanade
+and kept only if (a) tracking back lands where they started and (b) the ORB descriptor at
+the new position still matches. Background points then give the camera's own motion (a
+RANSAC similarity, as BoT-SORT does for shake); points on above-ground regions are the
+ones the tracker uses for association votes and the height-consistency check.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from pipeline.config import GroundConfig, MatchingConfig
+from pipeline.packets import FeatureMatches, FramePacket
+
+FORWARD_BACKWARD_MAX_PX = 1.0
+# Share of the ORB budget spent on above-ground regions: movers are small but matter most.
+OBJECT_FEATURE_SHARE = 0.5
+ORB_LEVELS = 4
+
+
+class FeatureMatcher:
+    def __init__(self, config: MatchingConfig, ground: GroundConfig):
+        self.config = config
+        self.height_threshold_m = ground.height_threshold_m
+        # Four pyramid levels instead of ORB's eight: consecutive frames barely change scale,
+        # and the coarse levels cost time for corners LK cannot use anyway.
+        self.orb_scene = cv2.ORB_create(nfeatures=int(config.orb_features * (1 - OBJECT_FEATURE_SHARE)),
+                                        nlevels=ORB_LEVELS)
+        self.orb_objects = cv2.ORB_create(nfeatures=int(config.orb_features * OBJECT_FEATURE_SHARE),
+                                          nlevels=ORB_LEVELS)
+        self.orb_describe = cv2.ORB_create(nlevels=ORB_LEVELS)
+        self.lk_params = dict(winSize=(config.lk_window, config.lk_window), maxLevel=config.lk_levels,
+                              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+        self._prev_gray: np.ndarray | None = None
+        self._prev_pyramid: tuple | None = None
+        self._prev_keypoints: list[cv2.KeyPoint] = []
+        self._prev_descriptors: np.ndarray | None = None
+
+    def _detect(self, gray: np.ndarray, above_ground: np.ndarray | None):
+        if above_ground is None:
+            return self.orb_scene.detectAndCompute(gray, None)
+        object_mask = above_ground.astype(np.uint8) * 255
+        kp_obj, des_obj = self.orb_objects.detectAndCompute(gray, object_mask)
+        kp_bg, des_bg = self.orb_scene.detectAndCompute(gray, cv2.bitwise_not(object_mask))
+        keypoints = list(kp_obj) + list(kp_bg)
+        parts = [d for d in (des_obj, des_bg) if d is not None]
+        return keypoints, (np.vstack(parts) if parts else None)
+
+    def _above_ground(self, packet: FramePacket) -> np.ndarray | None:
+        if packet.height_map is None:
+            return None
+        return packet.height_map > self.height_threshold_m
+
+    def process(self, packet: FramePacket) -> FramePacket:
+        gray = cv2.cvtColor(packet.frame.image, cv2.COLOR_BGR2GRAY)
+        above_ground = self._above_ground(packet)
+        scale = self.config.downscale
+        if scale > 1:
+            size = (gray.shape[1] // scale, gray.shape[0] // scale)
+            gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+            if above_ground is not None:
+                above_ground = cv2.resize(above_ground.astype(np.uint8), size,
+                                          interpolation=cv2.INTER_NEAREST).astype(bool)
+        if self._prev_gray is not None and self._prev_keypoints and self._prev_gray.shape == gray.shape:
+            packet.matches = self._match(gray, above_ground)
+            if scale > 1:
+                packet.matches = self._to_source_pixels(packet.matches, scale)
+        self._prev_gray = gray
+        self._prev_keypoints, self._prev_descriptors = self._detect(gray, above_ground)
+        return packet
+
+    def _match(self, gray: np.ndarray, above_ground: np.ndarray | None) -> FeatureMatches:
+        prev = np.float32([kp.pt for kp in self._prev_keypoints]).reshape(-1, 1, 2)
+        curr, status, _ = cv2.calcOpticalFlowPyrLK(self._prev_gray, gray, prev, None, **self.lk_params)
+        back, status_back, _ = cv2.calcOpticalFlowPyrLK(gray, self._prev_gray, curr, None, **self.lk_params)
+        fb_error = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
+        keep = (status.ravel() == 1) & (status_back.ravel() == 1) & (fb_error < FORWARD_BACKWARD_MAX_PX)
+        keep &= self._descriptors_agree(gray, curr.reshape(-1, 2), keep)
+        prev_pts = prev.reshape(-1, 2)[keep]
+        curr_pts = curr.reshape(-1, 2)[keep]
+        on_object = self._on_object(curr_pts, above_ground)
+        motion, inliers = self._camera_motion(prev_pts[~on_object], curr_pts[~on_object])
+        # Background points that disagree with the camera motion are mismatches: drop them.
+        keep_bg = np.ones(len(prev_pts), bool)
+        keep_bg[np.flatnonzero(~on_object)] = inliers
+        return FeatureMatches(prev_pts=prev_pts[keep_bg], curr_pts=curr_pts[keep_bg],
+                              on_object=on_object[keep_bg], camera_motion=motion)
+
+    @staticmethod
+    def _to_source_pixels(matches: FeatureMatches, scale: int) -> FeatureMatches:
+        """Matching ran on a 1/scale image: points and the motion's translation scale back."""
+        motion = matches.camera_motion.copy()
+        motion[:, 2] *= scale
+        # pixel centres: (x + 0.5) * s - 0.5
+        offset = (scale - 1) / 2.0
+        return FeatureMatches(prev_pts=matches.prev_pts * scale + offset,
+                              curr_pts=matches.curr_pts * scale + offset,
+                              on_object=matches.on_object, camera_motion=motion)
+
+    def _descriptors_agree(self, gray: np.ndarray, curr: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """ORB check: the descriptor at the tracked position must still match the original."""
+        agree = np.zeros(len(curr), bool)
+        if self._prev_descriptors is None:
+            return agree
+        idx = np.flatnonzero(candidates)
+        moved = [cv2.KeyPoint(float(curr[i, 0]), float(curr[i, 1]), self._prev_keypoints[i].size,
+                              self._prev_keypoints[i].angle, 0, self._prev_keypoints[i].octave, int(i))
+                 for i in idx]
+        moved, descriptors = self.orb_describe.compute(gray, moved)
+        if descriptors is None:
+            return agree
+        original = np.array([kp.class_id for kp in moved])
+        distance = np.unpackbits(descriptors ^ self._prev_descriptors[original], axis=1).sum(axis=1)
+        agree[original[distance <= self.config.max_hamming]] = True
+        return agree
+
+    @staticmethod
+    def _on_object(points: np.ndarray, above_ground: np.ndarray | None) -> np.ndarray:
+        if above_ground is None or len(points) == 0:
+            return np.zeros(len(points), bool)
+        h, w = above_ground.shape
+        x = np.clip(points[:, 0].round().astype(int), 0, w - 1)
+        y = np.clip(points[:, 1].round().astype(int), 0, h - 1)
+        return above_ground[y, x]
+
+    def _camera_motion(self, prev_pts: np.ndarray, curr_pts: np.ndarray):
+        """Similarity transform of the static background (identity when too few points)."""
+        identity = np.eye(2, 3, dtype=np.float32)
+        if len(prev_pts) < 6:
+            return identity, np.ones(len(prev_pts), bool)
+        matrix, inliers = cv2.estimateAffinePartial2D(
+            prev_pts, curr_pts, method=cv2.RANSAC, ransacReprojThreshold=self.config.ransac_threshold_px)
+        if matrix is None:
+            return identity, np.ones(len(prev_pts), bool)
+        return matrix.astype(np.float32), inliers.ravel().astype(bool)

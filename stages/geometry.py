@@ -1,0 +1,106 @@
+"""Geometry measurement: each detection's height and ground position through the calibrated camera.
+
+A second height measurement, independent of the network: the foot point's ray meets the ground
+plane, and the top point's ray passes the vertical through that ground point at the object's
+height (:func:`stages.calibration.heights_from_foot_top`). The tracker fuses it with the
+network's height, so its noise must be honest: pixel noise of the two points propagated through
+the geometry, the camera-height uncertainty of a self-calibrated camera, and for long objects
+the error of assuming the top is above the foot.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from pipeline.config import CameraConfig
+from pipeline.packets import CameraInfo, Detection, FramePacket
+from stages.calibration import heights_from_foot_top, is_calibrated, undistort_pixels
+
+# Horizontal distance between an object's ground contact (the bottom of its blob) and the part
+# that is its top in the image. The geometry assumes the top is vertically above the foot: for a
+# person that holds to a few centimetres, for a car seen from above the top of the blob is the far
+# edge of the roof, metres behind the front bumper, and the height comes out too large.
+HORIZONTAL_EXTENT_M = {"person": 0.3, "cyclist": 1.2, "vehicle": 4.5, "other": 1.0}
+# Geometry heights outside this range are failures (foot near the horizon, top ray grazing).
+PLAUSIBLE_HEIGHT_M = (0.05, 30.0)
+# Points this close to the top or bottom image border may be cut off.
+BORDER_MARGIN_PX = 2.0
+
+
+class GeometryMeasurer:
+    """Sets ``geometry_height_m``, ``geometry_noise_m`` and ``ground_xy_m`` of each detection.
+
+    Does nothing unless ``packet.camera`` has a pose (source "calibration" or "self").
+    Points are undistorted here when the camera still has distortion (no Undistorter ran).
+
+    Parameters
+    ----------
+    config : CameraConfig
+        ``point_noise_px`` (std of foot and top points) and ``height_std_m`` (camera height
+        uncertainty, from self-calibration) set the noise.
+    """
+
+    def __init__(self, config: CameraConfig):
+        self.point_noise_px = config.point_noise_px
+        self.camera_height_std_m = config.height_std_m
+
+    def process(self, packet: FramePacket) -> FramePacket:
+        start = time.perf_counter()
+        camera = packet.camera
+        usable = [d for d in packet.detections if d.foot_xy is not None]
+        if is_calibrated(camera) and usable:
+            self.measure(camera, usable)
+        packet.timings_ms["geometry"] = (time.perf_counter() - start) * 1000
+        return packet
+
+    def measure(self, camera: CameraInfo, detections: list[Detection]) -> None:
+        foot = np.array([d.foot_xy for d in detections], dtype=float)
+        top = np.array([d.top_xy if d.top_xy is not None else (np.nan, np.nan) for d in detections])
+        foot_ok = foot[:, 1] < camera.height - BORDER_MARGIN_PX
+        top_ok = (top[:, 1] > BORDER_MARGIN_PX) & foot_ok
+        foot = undistort_pixels(camera, foot)
+        top = undistort_pixels(camera, top)
+
+        heights, ground = heights_from_foot_top(camera, foot, top)
+        noise = self._pixel_noise(camera, foot, top)
+        distance = np.hypot(*(ground - (-camera.R.T @ camera.t)[:2]).T)
+        for i, detection in enumerate(detections):
+            if foot_ok[i] and np.all(np.isfinite(ground[i])):
+                detection.ground_xy_m = (float(ground[i, 0]), float(ground[i, 1]))
+            height = heights[i]
+            if not (top_ok[i] and np.isfinite(height) and np.isfinite(noise[i])
+                    and PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]):
+                continue
+            extent = HORIZONTAL_EXTENT_M.get(detection.cls, HORIZONTAL_EXTENT_M["other"])
+            shape_error = self._top_offset_error(camera.height_m, height, distance[i], extent)
+            scale_error = height * self.camera_height_std_m / camera.height_m
+            detection.geometry_height_m = float(height)
+            detection.geometry_noise_m = float(np.sqrt(noise[i] ** 2 + shape_error ** 2 + scale_error ** 2))
+
+    def _pixel_noise(self, camera: CameraInfo, foot: np.ndarray, top: np.ndarray) -> np.ndarray:
+        """Std of the height from independent noise on the four point coordinates (central differences)."""
+        step = self.point_noise_px
+        variance = np.zeros(len(foot))
+        for points_index in (0, 1):
+            for axis in (0, 1):
+                shifted = [foot.copy(), top.copy()]
+                shifted[points_index][:, axis] += step
+                plus, _ = heights_from_foot_top(camera, *shifted)
+                shifted[points_index][:, axis] -= 2 * step
+                minus, _ = heights_from_foot_top(camera, *shifted)
+                variance += ((plus - minus) / 2.0) ** 2
+        return np.sqrt(variance)
+
+    @staticmethod
+    def _top_offset_error(camera_height_m: float, height_m: float, distance_m: float,
+                          extent_m: float) -> float:
+        """Half the height error made when the top lies ``extent_m`` behind the foot (taken as 1 std).
+
+        The top ray crosses the foot's vertical at h_c - (h_c - H) d / (d + L) instead of H.
+        """
+        if not np.isfinite(distance_m):
+            return float("inf")
+        drop = max(camera_height_m - height_m, 0.0)
+        return 0.5 * drop * extent_m / (distance_m + extent_m)

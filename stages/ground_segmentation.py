@@ -1,0 +1,34 @@
+"""Ground-plane segmentation: which pixels belong to the plane heights are measured from."""
+
+from __future__ import annotations
+
+from pipeline.config import GroundConfig
+from pipeline.errors import ConfigError
+from pipeline.packets import FramePacket
+from stages.heightnet_model import HeightNetModel
+
+METHODS = ("model", "height")
+
+
+class GroundSegmenter:
+    """Ground mask from the network's ground head, or from the height map itself.
+
+    'model' uses the ground head (it sees texture and context, so a low kerb or a bench
+    seat is not mistaken for ground); 'height' thresholds the height map and exists for
+    models exported without a trustworthy ground head.
+    """
+
+    def __init__(self, config: GroundConfig, model: HeightNetModel):
+        if config.method not in METHODS:
+            raise ConfigError(f"ground.method must be one of {METHODS}, got {config.method!r}")
+        self.config = config
+        self.model = model
+
+    def process(self, packet: FramePacket) -> FramePacket:
+        output = self.model.infer(packet.frame)
+        if self.config.method == "model":
+            packet.ground_mask = output.ground_probability >= self.config.probability_threshold
+        else:
+            metres = self.model.to_metres(output.height, packet.camera)
+            packet.ground_mask = metres < self.config.height_threshold_m
+        return packet

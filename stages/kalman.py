@@ -1,0 +1,171 @@
+"""Per-track Kalman filters (filterpy), built by a factory so the tracker never touches matrices.
+
+Two independent filters per track:
+
+* ``MotionFilter``: the box in the image, constant velocity, state
+  ``[cx, cy, w, h, vcx, vcy, vw, vh]`` (pixels, pixels per frame). Noise scales with the box
+  size as in DeepSORT / BoT-SORT (``std_weight_position = 1/20``, ``std_weight_velocity =
+  1/160``): a 20 px box and a 200 px box are equally sure in relative terms. Camera shake is
+  applied to this state (``warp``), never to the height.
+* ``HeightFilter``: the object's height in metres, a 1-D random walk with near-zero process
+  noise (objects do not grow), so every frame is one more measurement of the same number.
+  A second measurement channel (geometry) is just a second ``update`` in the same frame
+  (sequential update: independent measurements may be applied one after the other).
+
+The algebra is filterpy's ``KalmanFilter`` (Joseph-form covariance update); only the
+matrices are set here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+from pipeline.config import TrackingConfig
+
+Box = tuple[float, float, float, float]
+
+# DeepSORT / BoT-SORT: position noise 1/20 of the box size, velocity noise 1/160 of it per frame.
+STD_WEIGHT_POSITION = 1.0 / 20.0
+STD_WEIGHT_VELOCITY = 1.0 / 160.0
+
+# 95 % quantile of chi-square with 4 degrees of freedom (box measurement): the gating distance.
+CHI2_95_4DOF = 9.4877
+
+
+def box_to_z(box: Box) -> np.ndarray:
+    x, y, w, h = box
+    return np.array([[x + w / 2.0], [y + h / 2.0], [w], [h]], dtype=float)
+
+
+def z_to_box(z: np.ndarray) -> Box:
+    cx, cy, w, h = (float(v) for v in np.asarray(z).ravel()[:4])
+    w, h = max(w, 1.0), max(h, 1.0)
+    return (cx - w / 2.0, cy - h / 2.0, w, h)
+
+
+@dataclass
+class MotionSnapshot:
+    """Filter state saved at an observation, for the OC-SORT re-update after a gap."""
+
+    x: np.ndarray
+    P: np.ndarray
+
+
+class MotionFilter:
+    """Constant-velocity box filter in image pixels."""
+
+    def __init__(self, box: Box):
+        kf = KalmanFilter(dim_x=8, dim_z=4)
+        kf.F = np.eye(8)
+        kf.F[:4, 4:] = np.eye(4)          # position += velocity (one frame)
+        kf.H = np.eye(4, 8)
+        kf.x = np.zeros((8, 1))
+        kf.x[:4] = box_to_z(box)
+        w, h = kf.x[2, 0], kf.x[3, 0]
+        std = np.array([2 * STD_WEIGHT_POSITION * w, 2 * STD_WEIGHT_POSITION * h,
+                        2 * STD_WEIGHT_POSITION * w, 2 * STD_WEIGHT_POSITION * h,
+                        10 * STD_WEIGHT_VELOCITY * w, 10 * STD_WEIGHT_VELOCITY * h,
+                        10 * STD_WEIGHT_VELOCITY * w, 10 * STD_WEIGHT_VELOCITY * h])
+        kf.P = np.diag(std ** 2)
+        self.kf = kf
+
+    @property
+    def box(self) -> Box:
+        return z_to_box(self.kf.x[:4])
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self.kf.x[4:6, 0].copy()
+
+    def predict(self) -> None:
+        w, h = max(self.kf.x[2, 0], 1.0), max(self.kf.x[3, 0], 1.0)
+        std = np.array([STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
+                        STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
+                        STD_WEIGHT_VELOCITY * w, STD_WEIGHT_VELOCITY * h,
+                        STD_WEIGHT_VELOCITY * w, STD_WEIGHT_VELOCITY * h])
+        self.kf.predict(Q=np.diag(std ** 2))
+        # A box cannot shrink below a pixel; a negative size would flip the box.
+        self.kf.x[2:4] = np.maximum(self.kf.x[2:4], 1.0)
+
+    def measurement_noise(self, noise_scale: float = 1.0) -> np.ndarray:
+        w, h = max(self.kf.x[2, 0], 1.0), max(self.kf.x[3, 0], 1.0)
+        std = np.array([STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
+                        STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h]) * noise_scale
+        return np.diag(std ** 2)
+
+    def update(self, box: Box, noise_scale: float = 1.0) -> None:
+        self.kf.update(box_to_z(box), R=self.measurement_noise(noise_scale))
+
+    def mahalanobis_sq(self, box: Box) -> float:
+        """Squared Mahalanobis distance of a box from the prediction (chi-square, 4 dof)."""
+        residual = box_to_z(box) - self.kf.H @ self.kf.x
+        innovation = self.kf.H @ self.kf.P @ self.kf.H.T + self.measurement_noise()
+        return float(residual.T @ np.linalg.solve(innovation, residual))
+
+    def warp(self, affine: np.ndarray) -> None:
+        """Move the state by the background's 2x3 affine (camera shake) from the last frame."""
+        affine = np.asarray(affine, dtype=float)
+        linear, shift = affine[:, :2], affine[:, 2]
+        scale = float(np.sqrt(abs(np.linalg.det(linear))))
+        transform = np.zeros((8, 8))
+        transform[0:2, 0:2] = linear
+        transform[2, 2] = transform[3, 3] = scale
+        transform[4:6, 4:6] = linear
+        transform[6, 6] = transform[7, 7] = scale
+        self.kf.x = transform @ self.kf.x
+        self.kf.x[0:2, 0] += shift
+        self.kf.P = transform @ self.kf.P @ transform.T
+
+    def snapshot(self) -> MotionSnapshot:
+        return MotionSnapshot(self.kf.x.copy(), self.kf.P.copy())
+
+    def restore(self, snapshot: MotionSnapshot) -> None:
+        self.kf.x = snapshot.x.copy()
+        self.kf.P = snapshot.P.copy()
+
+
+class HeightFilter:
+    """Object height in metres: a constant with a tiny random walk."""
+
+    def __init__(self, height_m: float, std_m: float, process_noise_m: float):
+        kf = KalmanFilter(dim_x=1, dim_z=1)
+        kf.x = np.array([[height_m]])
+        kf.P = np.array([[std_m ** 2]])
+        kf.F = np.eye(1)
+        kf.H = np.eye(1)
+        kf.Q = np.array([[process_noise_m ** 2]])
+        self.kf = kf
+
+    @property
+    def height_m(self) -> float:
+        return float(self.kf.x[0, 0])
+
+    @property
+    def std_m(self) -> float:
+        return float(np.sqrt(self.kf.P[0, 0]))
+
+    def predict(self) -> None:
+        self.kf.predict()
+
+    def normalized_residual(self, height_m: float, std_m: float) -> float:
+        """How many innovation standard deviations a measurement lies from the state."""
+        return abs(height_m - self.height_m) / float(np.sqrt(self.kf.P[0, 0] + std_m ** 2))
+
+    def update(self, height_m: float, std_m: float) -> None:
+        self.kf.update(np.array([[height_m]]), R=np.array([[std_m ** 2]]))
+
+
+class FilterFactory:
+    """Builds the per-track filters; swap it to change filtering without touching association."""
+
+    def __init__(self, config: TrackingConfig):
+        self.height_process_noise_m = config.height_process_noise_m
+
+    def create_motion_filter(self, box: Box) -> MotionFilter:
+        return MotionFilter(box)
+
+    def create_height_filter(self, height_m: float, std_m: float) -> HeightFilter:
+        return HeightFilter(height_m, std_m, self.height_process_noise_m)

@@ -1,0 +1,59 @@
+import dataclasses
+import tomllib
+
+import pytest
+
+from pipeline.config import DEFAULT_CONFIG_PATH, Config, load_config, parse_override
+from pipeline.errors import ConfigError
+
+
+def test_config_toml_documents_exactly_the_defaults():
+    table = tomllib.loads(DEFAULT_CONFIG_PATH.read_text())
+    defaults = Config()
+    for section in dataclasses.fields(Config):
+        values = dataclasses.asdict(getattr(defaults, section.name))
+        assert table.get(section.name) == values, f"[{section.name}] in config.toml differs from the dataclass"
+
+
+def test_unknown_key_is_rejected(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[tracking]\nmin_hitz = 3\n")
+    with pytest.raises(ConfigError, match="unknown config key 'tracking.min_hitz'"):
+        load_config(path)
+
+
+def test_unknown_section_is_rejected(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[trackin]\nmin_hits = 3\n")
+    with pytest.raises(ConfigError, match=r"unknown config section \[trackin\]"):
+        load_config(path)
+
+
+def test_wrong_type_is_rejected(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text('[tracking]\nmin_hits = "three"\n')
+    with pytest.raises(ConfigError, match="tracking.min_hits .* must be int"):
+        load_config(path)
+
+
+def test_int_widens_to_float_but_bool_is_not_int(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[camera]\nheight_m = 7\n")
+    assert load_config(path).camera.height_m == 7.0
+    path.write_text("[tracking]\nmin_hits = true\n")
+    with pytest.raises(ConfigError):
+        load_config(path)
+
+
+def test_overrides_win_and_parse_toml_values():
+    config = load_config(None, ["tracking.min_hits=7", "tracking.background=cnt", "output.mcap=false"])
+    assert config.tracking.min_hits == 7
+    assert config.tracking.background == "cnt"
+    assert config.output.mcap is False
+    with pytest.raises(ConfigError):
+        parse_override("min_hits=7")
+
+
+def test_missing_config_file(tmp_path):
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_config(tmp_path / "nope.toml")

@@ -1,0 +1,150 @@
+import http.server
+import socketserver
+import threading
+
+import cv2
+import numpy as np
+import pytest
+
+from conftest import SHARED_REAL, write_moving_box_video
+from pipeline.config import CaptureConfig
+from pipeline.errors import SourceError
+from stages.capture import StreamSource, open_source
+
+TRAFFIC = SHARED_REAL / "traffic_bridge" / "car_traffic_small.mp4"
+
+
+def test_video_file_reads_all_frames_with_container_times(box_video):
+    source = open_source(str(box_video), CaptureConfig())
+    frames = list(source.frames())
+    assert [f.index for f in frames] == list(range(30))
+    assert frames[1].time_s == pytest.approx(0.1, abs=1e-3)
+    assert source.stats.decoded == 30 and source.stats.failed == 0
+
+
+def test_stride_keeps_source_indices_and_times(box_video):
+    source = open_source(str(box_video), CaptureConfig(stride=4, max_frames=5))
+    frames = list(source.frames())
+    assert [f.index for f in frames] == [0, 4, 8, 12, 16]
+    assert frames[2].time_s == pytest.approx(0.8, abs=1e-3)
+
+
+@pytest.mark.skipif(not TRAFFIC.exists(), reason="shared real clips not present")
+def test_real_clip_decodes_917_frames_and_reports_the_header_mismatch():
+    source = open_source(str(TRAFFIC), CaptureConfig())
+    count = sum(1 for _ in source.frames())
+    assert count == 917
+    assert source.stats.expected == 922
+    assert "917 frames decoded" in source.stats.summary()
+
+
+def test_missing_file():
+    with pytest.raises(SourceError, match="no such file"):
+        open_source("does/not/exist.mp4", CaptureConfig())
+
+
+def test_file_that_is_not_a_video(tmp_path):
+    path = tmp_path / "notes.mp4"
+    path.write_text("this is text, not a video\n" * 100)
+    with pytest.raises(SourceError, match="not a readable video"):
+        open_source(str(path), CaptureConfig())
+
+
+def test_truncated_video_processes_what_decodes(tmp_path):
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for i in range(40):
+        writer.write(np.full((48, 64, 3), i * 5, np.uint8))
+    writer.release()
+    data = path.read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[: len(data) // 2])
+    source = open_source(str(cut), CaptureConfig())
+    frames = list(source.frames())
+    assert 5 < len(frames) < 40
+    assert source.stats.decoded == len(frames)
+
+
+def test_image_folder_counts_undecodable_images(tmp_path):
+    for i in range(5):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((24, 32, 3), i * 40, np.uint8))
+    (tmp_path / "002.png").write_bytes(b"broken")
+    source = open_source(str(tmp_path), CaptureConfig())
+    frames = list(source.frames())
+    assert [f.index for f in frames] == [0, 1, 3, 4]
+    assert source.stats.failed == 1
+    glob_frames = list(open_source(str(tmp_path / "00[34].png"), CaptureConfig()).frames())
+    assert len(glob_frames) == 2
+
+
+def test_empty_folder_and_unmatched_glob(tmp_path):
+    with pytest.raises(SourceError, match="without images"):
+        open_source(str(tmp_path), CaptureConfig())
+    with pytest.raises(SourceError, match="no images match"):
+        open_source(str(tmp_path / "*.png"), CaptureConfig())
+
+
+class _NeverOpens:
+    def isOpened(self):
+        return False
+
+    def release(self):
+        pass
+
+
+def test_unreachable_stream_retries_with_backoff_then_fails():
+    delays = []
+    with pytest.raises(SourceError, match="cannot open stream rtsp://cam/1 after 4 attempts"):
+        StreamSource("rtsp://cam/1", CaptureConfig(connect_attempts=4, backoff_s=0.5),
+                     opener=lambda url: _NeverOpens(), sleep=delays.append)
+    assert delays == [0.5, 1.0, 2.0]
+
+
+def test_unreachable_real_rtsp_url_fails_fast():
+    with pytest.raises(SourceError, match="cannot open stream"):
+        open_source("rtsp://127.0.0.1:9/none", CaptureConfig(connect_attempts=2, backoff_s=0.01))
+
+
+def _mjpeg_server(frames_per_connection):
+    """An IP-camera-like MJPEG stream that drops the connection after N frames."""
+    connections = []
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+        def do_GET(self):
+            connections.append(1)
+            count = frames_per_connection[min(len(connections), len(frames_per_connection)) - 1]
+            self.send_response(200)
+            self.send_header("Content-Type", "multipart/x-mixed-replace;boundary=frame")
+            self.end_headers()
+            for i in range(count):
+                jpg = cv2.imencode(".jpg", np.full((48, 64, 3), i * 8 % 255, np.uint8))[1].tobytes()
+                try:
+                    self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n"
+                                     % len(jpg) + jpg + b"\r\n")
+                except (BrokenPipeError, ConnectionResetError):
+                    return
+
+    class Server(socketserver.ThreadingMixIn, http.server.HTTPServer):
+        daemon_threads = True
+
+    server = Server(("127.0.0.1", 0), Handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server, connections
+
+
+def test_stream_that_drops_mid_run_reconnects_and_keeps_recording():
+    server, connections = _mjpeg_server([20, 30])
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
+        source = open_source(url, CaptureConfig(reconnect_attempts=1, backoff_s=0.01, read_timeout_s=2))
+        frames = list(source.frames())
+    finally:
+        server.shutdown()
+    assert len(connections) == 2
+    assert source.stats.reconnects == 1
+    assert len(frames) == 50
+    times = [f.time_s for f in frames]
+    assert all(b >= a for a, b in zip(times, times[1:])), "time must not run backwards after a reconnect"

@@ -1,0 +1,77 @@
+import numpy as np
+import pytest
+
+from conftest import make_tiny_height_model
+from pipeline.config import GroundConfig
+from pipeline.errors import ModelError
+from pipeline.packets import CameraInfo, Frame, FramePacket
+from stages.ground_segmentation import GroundSegmenter
+from stages.height_inference import HeightEstimator
+from stages.heightnet_model import SHIPPED_MODEL, HeightNetModel
+
+
+def _packet(image, camera_height=5.0):
+    h, w = image.shape[:2]
+    return FramePacket(frame=Frame(0, 0.0, image), camera=CameraInfo(w, h, height_m=camera_height))
+
+
+def test_metadata_drives_input_size_and_units(tiny_model):
+    model = HeightNetModel(tiny_model)
+    assert (model.info.input_width, model.info.input_height) == (64, 48)
+    assert model.info.output_units == "camera_height_fraction"
+
+
+def test_height_map_is_metres_at_frame_size_and_zero_on_ground(tiny_model):
+    model = HeightNetModel(tiny_model)
+    image = np.zeros((90, 120, 3), np.uint8)
+    image[20:60, 40:70] = 255
+    packet = GroundSegmenter(GroundConfig(), model).process(_packet(image, camera_height=5.0))
+    packet = HeightEstimator(model).process(packet)
+    assert packet.height_map.shape == (90, 120) and packet.height_map.dtype == np.float32
+    # white pixels: 3 channels x 0.15 x (255/255-0.5)/0.5 = 0.45 of camera height
+    assert packet.height_map[40, 55] == pytest.approx(0.45 * 5.0, rel=0.02)
+    assert packet.ground_mask[5, 5] and not packet.ground_mask[40, 55]
+    assert packet.height_map[packet.ground_mask].max() == 0.0
+
+
+def test_network_runs_once_per_frame(tiny_model):
+    model = HeightNetModel(tiny_model)
+    packet = _packet(np.zeros((48, 64, 3), np.uint8))
+    first = model.infer(packet.frame)
+    assert model.infer(packet.frame) is first
+
+
+def test_missing_model_file(tmp_path):
+    with pytest.raises(ModelError, match="model file not found"):
+        HeightNetModel(tmp_path / "none.onnx")
+
+
+def test_not_an_onnx_file(tmp_path):
+    path = tmp_path / "bad.onnx"
+    path.write_bytes(b"\x00garbage" * 50)
+    with pytest.raises(ModelError, match="not a loadable ONNX model"):
+        HeightNetModel(path)
+
+
+def test_wrong_input_shape_is_rejected(tmp_path):
+    path = make_tiny_height_model(tmp_path / "m.onnx", width=64, height=48, input_shape=[1, 3, 32, 64])
+    with pytest.raises(ModelError, match="input shape"):
+        HeightNetModel(path)
+
+
+def test_model_without_metadata_is_rejected(tmp_path):
+    import onnx
+
+    path = make_tiny_height_model(tmp_path / "m.onnx")
+    model = onnx.load(str(path))
+    del model.metadata_props[:]
+    onnx.save(model, str(path))
+    with pytest.raises(ModelError, match="lacks heightpipe metadata"):
+        HeightNetModel(path)
+
+
+@pytest.mark.skipif(not SHIPPED_MODEL.exists(), reason="no shipped model yet")
+def test_shipped_model_loads():
+    model = HeightNetModel()
+    out = model.infer(Frame(0, 0.0, np.zeros((360, 640, 3), np.uint8)))
+    assert out.height.shape == (360, 640)

@@ -1,0 +1,122 @@
+"""ObjectTracker on hand-made detections: ids, births and deaths, and height convergence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.config import TrackingConfig
+from pipeline.packets import CameraInfo, Detection, FeatureMatches, Frame, FramePacket
+from stages.association import assign, iou_matrix
+from stages.tracking import ObjectTracker, TrackingStage
+
+
+def _detection(x: float, y: float, height_m: float, w: float = 30, h: float = 80,
+               noise_m: float = 0.15, cls: str = "person") -> Detection:
+    return Detection(box=(x, y, w, h), height_m=height_m, cls=cls, height_noise_m=noise_m)
+
+
+def _best_track(tracks, box):
+    ious = iou_matrix([t.box for t in tracks], [box])[:, 0]
+    return tracks[int(np.argmax(ious))] if len(tracks) and ious.max() > 0.3 else None
+
+
+def test_iou_matrix_and_assignment():
+    iou = iou_matrix([(0, 0, 10, 10), (100, 100, 10, 10)], [(5, 0, 10, 10), (0, 0, 10, 10)])
+    assert iou[0, 1] == pytest.approx(1.0)
+    assert iou[0, 0] == pytest.approx(50 / 150)
+    assert iou[1].max() == 0.0
+    result = assign(1.0 - iou, iou >= 0.1)
+    assert result.matches == [(0, 1)]
+    assert result.unmatched_tracks == [1] and result.unmatched_detections == [0]
+
+
+def test_moving_object_gives_one_track_whose_height_converges():
+    rng = np.random.default_rng(0)
+    tracker = ObjectTracker(TrackingConfig())
+    true_height, stds, ids = 1.75, [], set()
+    for frame in range(80):
+        measured = true_height + rng.normal(0.0, 0.15)
+        tracks = tracker.update([_detection(50 + 4 * frame, 100 + frame, measured)])
+        assert len(tracks) == 1
+        ids.add(tracks[0].track_id)
+        stds.append(tracks[0].height_std_m)
+    track = tracks[0]
+    assert ids == {track.track_id}
+    assert track.confirmed and track.cls == "person"
+    assert abs(track.height_m - true_height) < 0.05
+    # Every frame is one more measurement of the same number: the std shrinks like 1/sqrt(n).
+    assert stds[-1] < stds[0] / 4
+    assert all(later <= earlier + 1e-9 for earlier, later in zip(stds, stds[1:]))
+
+
+def test_crossing_objects_keep_their_ids_and_heights():
+    rng = np.random.default_rng(1)
+    tracker = ObjectTracker(TrackingConfig())
+    ids_a, ids_b = [], []
+    for frame in range(60):
+        box_a = (20 + 5 * frame, 100.0)             # walks right
+        box_b = (320 - 5 * frame, 125.0)            # walks left, crossing around frame 30
+        detections = [_detection(*box_a, 1.60 + rng.normal(0, 0.05)),
+                      _detection(*box_b, 1.90 + rng.normal(0, 0.05))]
+        tracks = tracker.update(detections)
+        track_a = _best_track(tracks, detections[0].box)
+        track_b = _best_track(tracks, detections[1].box)
+        ids_a.append(track_a.track_id)
+        ids_b.append(track_b.track_id)
+    assert len(set(ids_a)) == 1 and len(set(ids_b)) == 1 and ids_a[0] != ids_b[0]
+    final = {t.track_id: t.height_m for t in tracks}
+    assert final[ids_a[0]] == pytest.approx(1.60, abs=0.05)
+    assert final[ids_b[0]] == pytest.approx(1.90, abs=0.05)
+
+
+def test_births_after_min_hits_and_deaths_after_max_misses():
+    config = TrackingConfig(min_hits=3, max_misses=5)
+    tracker = ObjectTracker(config)
+    confirmed_counts, live_counts = [], []
+    for frame in range(20):
+        detections = [_detection(100 + 2 * frame, 50, 1.7)] if 2 <= frame < 10 else []
+        if frame == 4:
+            detections.append(_detection(400, 300, 1.2))      # a one-frame false positive
+        tracks = tracker.update(detections)
+        live_counts.append(len(tracks))
+        confirmed_counts.append(sum(t.confirmed for t in tracks))
+    # Seen from frame 2: tentative at 2 and 3, confirmed from frame 4 on (third hit).
+    assert confirmed_counts[:4] == [0, 0, 0, 0] and confirmed_counts[4] == 1
+    # The false positive lives one frame as a tentative track and is never confirmed.
+    assert live_counts[4] == 2 and live_counts[5] == 1
+    # Last detection at frame 9: predicted through 5 misses (frames 10-14), gone at frame 15.
+    assert confirmed_counts[14] == 1 and live_counts[15] == 0
+
+
+def test_missing_heights_do_not_crash_or_poison_the_state():
+    tracker = ObjectTracker(TrackingConfig())
+    tracks = tracker.update([_detection(10, 10, float("nan"), noise_m=float("inf"))])
+    assert np.isnan(tracks[0].height_m)
+    for frame in range(1, 5):
+        tracks = tracker.update([_detection(10 + frame, 10, 1.5)])
+    assert tracks[0].height_m == pytest.approx(1.5)
+
+
+def test_camera_motion_moves_the_prediction_not_the_height():
+    tracker = ObjectTracker(TrackingConfig(min_hits=1))
+    for _ in range(5):
+        tracks = tracker.update([_detection(100, 100, 1.8)])
+    shake = np.array([[1.0, 0.0, 12.0], [0.0, 1.0, -7.0]], dtype=np.float32)
+    empty = np.zeros((0, 2), np.float32)
+    matches = FeatureMatches(empty, empty, np.zeros(0, bool), camera_motion=shake)
+    tracks = tracker.update([], matches)
+    x, y, w, h = tracks[0].box
+    assert (x, y) == pytest.approx((112.0, 93.0), abs=0.5)
+    assert (w, h) == pytest.approx((30.0, 80.0), abs=0.5)
+    assert tracks[0].height_m == pytest.approx(1.8) and not tracks[0].updated
+
+
+def test_tracking_stage_fills_packet_tracks():
+    stage = TrackingStage(TrackingConfig(min_hits=1))
+    image = np.zeros((240, 320, 3), np.uint8)
+    packet = FramePacket(Frame(0, 0.0, image), CameraInfo(320, 240),
+                         detections=[_detection(10, 10, 1.7)])
+    packet = stage.process(packet)
+    assert len(packet.tracks) == 1 and packet.tracks[0].confirmed
+    assert "tracking" in packet.timings_ms
