@@ -80,7 +80,9 @@ def heightnet_loss(encoded: torch.Tensor, ground_logit: torch.Tensor, batch: dic
     above = labelled & (target > threshold)
     si_all = scale_invariant_log_loss(encoded, target, encoding, labelled.float(), weights.si_lambda)
     si_above = scale_invariant_log_loss(encoded, target, encoding, above.float(), weights.si_lambda)
-    metres = encoding.metres_from_output(torch.relu(torch.exp(encoded) - encoding.offset), camera)
+    # Clamped before exp: an early wild prediction must not blow the squared loss up.
+    decoded = torch.relu(torch.exp(encoded.clamp(max=3.5)) - encoding.offset)
+    metres = encoding.metres_from_output(decoded, camera)
     pairs = metres.unflatten(0, (-1, 2))
     consistency = height_consistency_loss(pairs[:, 0], pairs[:, 1], batch["matches"],
                                           batch["match_valid"])

@@ -102,6 +102,15 @@ class PreActConv(nn.Sequential):
                                   dilation=dilation, bias=False))
 
 
+class Head(nn.Sequential):
+    """GroupNorm -> ReLU -> plain convolution: a prediction layer whose scale is its own
+    (weight standardisation would undo a small initialisation)."""
+
+    def __init__(self, cin: int, cout: int, kernel: int):
+        super().__init__(group_norm(cin), nn.ReLU(inplace=True),
+                         nn.Conv2d(cin, cout, kernel, padding=kernel // 2))
+
+
 class DenseASPP(nn.Module):
     """Dense atrous spatial pyramid (Yang et al. 2018): each dilated branch sees all earlier ones."""
 
@@ -264,7 +273,7 @@ class HeightNet(nn.Module):
         widths = [c16, c8, c4, c2, c1]
         k = arch.head_kernel
         self.coarse = self._level(arch.aspp_channels + 3, c16, arch.level_blocks[0])
-        self.coarse_head = PreActConv(c16, 1, k)
+        self.coarse_head = Head(c16, 1, k)
         # Finer levels: inputs are upsampled features, encoder skip, 3 Laplacian channels, prediction.
         skip_at = [skips[2], skips[1], skips[0], 0]
         # Features are narrowed to the finer level's width *before* upsampling: the full-resolution
@@ -276,7 +285,7 @@ class HeightNet(nn.Module):
             cin = widths[i + 1] + skip_at[i] + 3 + 1
             self.levels.append(self._level(cin, widths[i + 1], arch.level_blocks[i + 1]))
             # The finest head also gives the ground logit (channel 1): one pass at full resolution.
-            self.heads.append(PreActConv(widths[i + 1], 2 if i == 3 else 1, k))
+            self.heads.append(Head(widths[i + 1], 2 if i == 3 else 1, k))
         self._init_heads()
 
     @staticmethod
@@ -286,10 +295,11 @@ class HeightNet(nn.Module):
     def _init_heads(self) -> None:
         # Start from "everything is a little above ground" and near-zero residuals: calm first steps.
         head = self.coarse_head[-1]
-        nn.init.zeros_(head.weight)
-        head.bias = nn.Parameter(torch.full((1,), self.encoding.ground_value + 1.0))
+        nn.init.normal_(head.weight, std=1e-3)
+        nn.init.constant_(head.bias, self.encoding.ground_value + 1.0)
         for h in self.heads:
             nn.init.normal_(h[-1].weight, std=1e-3)
+            nn.init.zeros_(h[-1].bias)
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         f2, f4, f8, f16 = self.encoder(image)

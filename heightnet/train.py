@@ -122,7 +122,7 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
             optimiser.step()
             step += 1
 
-            values = {k: float(v) for k, v in losses.items()}
+            values = {k: float(v.detach()) for k, v in losses.items()}
             values["mover_rmse_cm"] = _mover_rmse_cm(encoded.detach(), batch, net.encoding)
             for k, v in values.items():
                 if math.isfinite(v):

@@ -19,6 +19,10 @@ from pipeline.errors import HeightpipeError
 COMMANDS = [
     ("run", "pipeline.run_command", "process a video, image folder, stream or webcam"),
     ("replay", "pipeline.replay", "show an MCAP recording in the rerun viewer (or convert it to .rrd)"),
+    ("train", "heightnet.cli_train", "train the height network on a synth dataset (resumable)"),
+    ("export", "heightnet.cli_export", "export a training checkpoint to ONNX (checked against PyTorch)"),
+    ("eval", "heightnet.cli_eval", "the paper's Table 1 on held-out synth scenes"),
+    ("predict", "heightnet.cli_predict", "height maps (uint16 PNG, mm) for images, a folder or a video"),
 ]
 
 

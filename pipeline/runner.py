@@ -50,8 +50,11 @@ class RunSummary:
         return self.frames / self.wall_s if self.wall_s > 0 else 0.0
 
 
-class StopRequested(Exception):
-    """Raised from the SIGTERM handler so the run unwinds through its finally blocks."""
+class StopRequested(BaseException):
+    """Raised from the SIGTERM handler so the run unwinds through its finally blocks.
+
+    A BaseException, like KeyboardInterrupt, so no ``except Exception`` in a stage swallows it.
+    """
 
 
 @contextmanager

@@ -62,6 +62,7 @@ class McapSink:
         self.flush_interval_s = config.flush_interval_s
         self.start_epoch_ns = time.time_ns()
         self._context = foxglove.Context()
+        # Compress in the logging thread: the pipeline stages need the other core.
         options = MCAPWriteOptions(compression=MCAPCompression.Zstd,
                                    chunk_size=config.mcap_chunk_size, compression_threads=0)
         try:
@@ -116,7 +117,8 @@ class McapSink:
             self._height.log(_raw_image(height_mm.astype("<u2", copy=False), "16UC1", stamp),
                              log_time=log_time)
         if packet.ground_mask is not None:
-            ground = (packet.ground_mask != 0).view(np.uint8) * np.uint8(255)
+            mask = packet.ground_mask
+            ground = (mask if mask.dtype == np.bool_ else mask != 0).view(np.uint8) * np.uint8(255)
             self._ground.log(_raw_image(ground, "mono8", stamp), log_time=log_time)
         self._annotations.log(_track_annotations(confirmed(packet.tracks), stamp), log_time=log_time)
         if packet.matches is not None:

@@ -15,9 +15,10 @@ the mean tracked person as tall as the prior's mean. Its uncertainty is honest a
 assumption: the spread of people over the number of tracks, the uncertainty of the population
 mean itself, and a bootstrap over tracks for everything the fit does.
 
-The focal length is not estimated (it is nearly degenerate with pitch from this data); it comes
-from the configured field of view or an intrinsic calibration. Relative heights depend mostly on
-where the horizon is, so a wrong focal length costs little in height, more in ground distances.
+The focal length is estimated too when no intrinsic calibration gives it (``fit_focal``): the
+head-foot lines of people across the image converge on the vertical vanishing point, whose
+distance below the image centre is f / tan(pitch). It is only well determined for a camera that
+looks clearly down; a weak prior around the configured field of view holds it otherwise.
 """
 
 from __future__ import annotations
@@ -55,8 +56,15 @@ class FitSettings:
     posture_fraction: float = 0.03
     """Frame-to-frame variation of one person's measured height (gait, posture), relative."""
     lean_fraction: float = 0.05
-    """Sideways offset of the head from the foot's vertical, relative to the person's image height."""
+    """Spread between people of the head's sideways offset from the foot's vertical, relative to
+    the person's image height (lean, carried bags, how the detector boxes them)."""
+    sway_fraction: float = 0.02
+    """Frame-to-frame variation of that offset along one track."""
     roll_prior_deg: float = 10.0
+    fit_focal: bool = True
+    """Estimate the focal length (False: keep K's, e.g. from an intrinsic calibration)."""
+    focal_prior_log_std: float = 0.5
+    """Weak log-normal prior of the focal length around K's."""
     """CCTV cameras are mounted nearly level: a weak prior keeps roll sane with little data."""
     min_pixel_height: float = 20.0
     """People smaller than this in the image are too coarse to use."""
@@ -80,6 +88,8 @@ class SelfCalibration:
     pitch_std_deg: float
     roll_deg: float
     roll_std_deg: float
+    focal_std_px: float
+    """0 where the focal length was given, not estimated."""
     n_observations: int
     n_tracks: int
     prior: HeightPrior
@@ -110,6 +120,9 @@ class SelfCalibration:
         ]
         if calibration:
             lines.append(f"calibration = {_toml_string(calibration)}   # intrinsics (its pose is not used)")
+        elif self.focal_std_px > 0:
+            fov_std = math.degrees(2 * self.width / 2 * self.focal_std_px / (focal ** 2 + (self.width / 2) ** 2))
+            lines.append(f"fov_deg = {fov:.1f}             # +- {fov_std:.1f} (focal {focal:.0f} px, estimated)")
         else:
             lines.append(f"fov_deg = {fov:.1f}             # assumed, not estimated (focal {focal:.0f} px)")
         lines.append("self_calibrated = true")
@@ -138,8 +151,8 @@ def self_calibrate(foot_uv: np.ndarray, top_uv: np.ndarray, track_ids: np.ndarra
             f"{len(observations)}")
     problem = _Problem(width, height, np.asarray(K, float), prior, settings)
 
-    pitch, roll = problem.fit(observations)
-    relative = problem.track_relative_heights(observations, pitch, roll)
+    params = problem.fit(observations)
+    relative = problem.track_relative_heights(observations, params)
     camera_height = prior.mean_m / float(np.mean(relative))
 
     # Bootstrap over people: refit on resampled tracks, starting from the solution.
@@ -147,23 +160,29 @@ def self_calibrate(foot_uv: np.ndarray, top_uv: np.ndarray, track_ids: np.ndarra
     samples = []
     for _ in range(settings.bootstrap):
         resampled = observations.resample_tracks(rng)
-        fitted = problem.fit(resampled, start=(pitch, roll))
-        samples.append((*fitted, prior.mean_m / float(np.mean(problem.track_relative_heights(resampled, *fitted)))))
-    samples = np.array(samples) if samples else np.zeros((0, 3))
-    pitch_std, roll_std, height_boot_std = (samples.std(axis=0, ddof=1) if len(samples) > 1
-                                            else (math.nan,) * 3)
+        fitted = problem.fit(resampled, start=params)
+        relative_sample = problem.track_relative_heights(resampled, fitted)
+        samples.append((*fitted, prior.mean_m / float(np.mean(relative_sample))))
+    samples = np.array(samples)
+    if len(samples) > 1:
+        pitch_std, roll_std, log_focal_std, height_boot_std = samples.std(axis=0, ddof=1)
+    else:
+        pitch_std = roll_std = log_focal_std = height_boot_std = math.nan
 
     # Camera height: people's spread over the number of people (at least), and the prior's mean.
     spread_std = camera_height * prior.std_m / prior.mean_m / math.sqrt(observations.n_tracks)
     mean_std = camera_height * prior.mean_std_m / prior.mean_m
-    height_std = math.sqrt(max(height_boot_std, spread_std) ** 2 + mean_std ** 2)
+    height_std = math.sqrt(np.fmax(height_boot_std, spread_std) ** 2 + mean_std ** 2)
 
+    pitch, roll, _ = params
+    K_fit = problem.intrinsics(params)
     result = SelfCalibration(
-        width=width, height=height, K=problem.K, height_m=camera_height, height_std_m=height_std,
+        width=width, height=height, K=K_fit, height_m=camera_height, height_std_m=height_std,
         pitch_deg=pitch, pitch_std_deg=float(pitch_std), roll_deg=roll, roll_std_deg=float(roll_std),
+        focal_std_px=float(K_fit[0, 0] * log_focal_std) if settings.fit_focal else 0.0,
         n_observations=len(observations), n_tracks=observations.n_tracks, prior=prior,
         height_spread=float(np.std(relative * camera_height)),
-        residual_px=float(np.median(np.abs(problem.lateral_px(observations, pitch, roll)))),
+        residual_px=float(np.median(np.abs(problem.lateral_px(observations, params)))),
     )
     if pitch_std > 3.0:
         result.notes.append(f"pitch is poorly determined (+- {pitch_std:.1f} deg): people should "
@@ -203,27 +222,32 @@ class _Observations:
 
 
 class _Problem:
-    """Residuals of a candidate (pitch, roll) for a unit-height camera."""
+    """Residuals of candidate parameters (pitch deg, roll deg, log focal scale), unit camera height."""
 
     def __init__(self, width: int, height: int, K: np.ndarray, prior: HeightPrior, settings: FitSettings):
         self.width, self.height, self.K = width, height, K
         self.prior, self.settings = prior, settings
 
-    def camera(self, pitch: float, roll: float) -> CameraInfo:
-        return camera_from_pose(self.width, self.height, self.K, 1.0, pitch, roll)
+    def intrinsics(self, params) -> np.ndarray:
+        K = self.K.copy()
+        K[0, 0] *= math.exp(params[2])
+        K[1, 1] *= math.exp(params[2])
+        return K
 
-    def lateral_px(self, obs: _Observations, pitch: float, roll: float) -> np.ndarray:
+    def camera(self, params) -> CameraInfo:
+        return camera_from_pose(self.width, self.height, self.intrinsics(params), 1.0, params[0], params[1])
+
+    def lateral_px(self, obs: _Observations, params) -> np.ndarray:
         """Signed distance of each head from the image line joining its foot and the vertical VP."""
-        vp = vertical_vanishing_point(self.camera(pitch, roll))
+        vp = vertical_vanishing_point(self.camera(params))
         foot_h = np.column_stack([obs.foot, np.ones(len(obs))])
         lines = np.cross(foot_h, vp)
         return (lines[:, 0] * obs.top[:, 0] + lines[:, 1] * obs.top[:, 1] + lines[:, 2]) / \
             np.hypot(lines[:, 0], lines[:, 1])
 
     def residuals(self, params: np.ndarray, obs: _Observations) -> np.ndarray:
-        pitch, roll = float(params[0]), float(params[1])
         s = self.settings
-        relative, _ = heights_from_foot_top(self.camera(pitch, roll), obs.foot, obs.top)
+        relative, _ = heights_from_foot_top(self.camera(params), obs.foot, obs.top)
         pixel_height = obs.foot[:, 1] - obs.top[:, 1]
         valid = np.isfinite(relative) & (relative > 0)
         log_h = np.where(valid, np.log(np.where(valid, relative, 1.0)), 0.0)
@@ -231,6 +255,7 @@ class _Problem:
         weight = valid / sigma ** 2
         track_weight = np.bincount(obs.track, weight, obs.n_tracks)
         track_mean = np.bincount(obs.track, weight * log_h, obs.n_tracks) / np.maximum(track_weight, 1e-12)
+        # One person keeps one height wherever they walk.
         within = np.where(valid, (log_h - track_mean[obs.track]) / sigma, 10.0)
         # Between people: track means scatter by the population spread (plus their own noise).
         seen = track_weight > 0
@@ -238,29 +263,46 @@ class _Problem:
         between = np.zeros(obs.n_tracks)
         if seen.sum() > 1:
             between[seen] = (track_mean[seen] - track_mean[seen].mean()) / np.sqrt(pop ** 2 + 1.0 / track_weight[seen])
-        lateral_sigma = np.hypot(s.point_noise_px, s.lean_fraction * pixel_height)
-        lateral = self.lateral_px(obs, pitch, roll) / lateral_sigma
-        return np.concatenate([within, between, lateral, [roll / s.roll_prior_deg]])
+        # People stand upright: heads on the image of their foot's vertical. A person's own lean
+        # (and the detector's habit on their shape) persists along the track, so like height it
+        # is split into a per-person mean, scattered by the lean spread, and the sway around it.
+        lean = self.lateral_px(obs, params) / pixel_height
+        lean_sigma = np.hypot(s.point_noise_px * math.sqrt(2) / pixel_height, s.sway_fraction)
+        lean_weight = 1.0 / lean_sigma ** 2
+        lean_track_weight = np.bincount(obs.track, lean_weight, obs.n_tracks)
+        lean_mean = np.bincount(obs.track, lean_weight * lean, obs.n_tracks) / np.maximum(lean_track_weight, 1e-12)
+        lean_within = (lean - lean_mean[obs.track]) / lean_sigma
+        lean_between = lean_mean / np.sqrt(s.lean_fraction ** 2 + 1.0 / np.maximum(lean_track_weight, 1e-12))
+        priors = [params[1] / s.roll_prior_deg, params[2] / s.focal_prior_log_std]
+        return np.concatenate([within, between, lean_within, lean_between, priors])
 
     def cost(self, params, obs) -> float:
         r = self.residuals(np.asarray(params, float), obs)
         return float(np.sum(2.0 * (np.sqrt(1.0 + r * r) - 1.0)))     # soft-L1, as in the fit
 
-    def fit(self, obs: _Observations, start: tuple[float, float] | None = None) -> tuple[float, float]:
+    def fit(self, obs: _Observations, start=None) -> tuple[float, float, float]:
         from scipy.optimize import least_squares
 
         if start is None:
             # Coarse search over pitch (the fit is not convex over the whole range).
             grid = np.arange(1.0, 86.0, 1.0)
-            costs = [self.cost((p, 0.0), obs) for p in grid]
-            start = (float(grid[int(np.argmin(costs))]), 0.0)
-        result = least_squares(self.residuals, np.array(start, float), args=(obs,), loss="soft_l1",
-                               bounds=([0.1, -45.0], [89.5, 45.0]), x_scale=[1.0, 1.0], diff_step=1e-4)
-        return float(result.x[0]), float(result.x[1])
+            costs = [self.cost((p, 0.0, 0.0), obs) for p in grid]
+            start = (float(grid[int(np.argmin(costs))]), 0.0, 0.0)
+        if self.settings.fit_focal:
+            free, residuals = np.array(start, float), self.residuals
+            lower, upper, scale = [0.1, -45.0, -2.0], [89.5, 45.0, 2.0], [1.0, 1.0, 0.05]
+        else:
+            free = np.array(start[:2], float)
+            residuals = lambda x, o: self.residuals(np.append(x, 0.0), o)   # noqa: E731
+            lower, upper, scale = [0.1, -45.0], [89.5, 45.0], [1.0, 1.0]
+        result = least_squares(residuals, np.clip(free, lower, upper), args=(obs,), loss="soft_l1",
+                               bounds=(lower, upper), x_scale=scale, diff_step=1e-4)
+        x = [float(v) for v in result.x]
+        return x[0], x[1], x[2] if len(x) == 3 else 0.0
 
-    def track_relative_heights(self, obs: _Observations, pitch: float, roll: float) -> np.ndarray:
+    def track_relative_heights(self, obs: _Observations, params) -> np.ndarray:
         """Each person's median height over camera height."""
-        relative, _ = heights_from_foot_top(self.camera(pitch, roll), obs.foot, obs.top)
+        relative, _ = heights_from_foot_top(self.camera(params), obs.foot, obs.top)
         out = []
         for k in range(obs.n_tracks):
             values = relative[(obs.track == k) & np.isfinite(relative)]

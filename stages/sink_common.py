@@ -74,12 +74,14 @@ class FrameEncoder:
 
 
 def height_to_mm(height_m: np.ndarray, scale: int) -> np.ndarray:
-    height = np.nan_to_num(np.asarray(height_m, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    if scale > 1:
+    height = np.asarray(height_m, dtype=np.float32)
+    if scale > 1:  # before the NaN fix-up: 1/scale^2 of the pixels to touch
         rows, cols = height.shape[:2]
         height = cv2.resize(height, (max(1, cols // scale), max(1, rows // scale)),
                             interpolation=cv2.INTER_AREA)
-    return np.clip(height * 1000.0 + 0.5, 0.0, 65535.0).astype(np.uint16)
+    millimetres = height * np.float32(1000.0) + np.float32(0.5)
+    millimetres[~np.isfinite(millimetres)] = 0.0
+    return np.clip(millimetres, 0.0, 65535.0, out=millimetres).astype(np.uint16)
 
 
 def confirmed(tracks: list[Track]) -> list[Track]:

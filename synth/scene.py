@@ -42,6 +42,9 @@ class Prim:
     material: str = ""
     rgba: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
     emission: float = 0.0
+    """< 0: a lamp head that glows at dusk and night."""
+    quat: tuple[float, float, float, float] | None = None
+    """Full orientation (w, x, y, z); when given, ``yaw`` is ignored."""
 
 
 @dataclass
@@ -183,13 +186,16 @@ class _Builder:
         """A static car (not a mover, instance 0), the same shape family as moving cars."""
         from synth.movers import vehicle_geoms  # local: movers imports this module
 
-        colour = _car_colour(self.rng)
-        for g in vehicle_geoms("car", self.rng, colour):
+        from synth.movers import quat_mul, quat_yaw
+
+        colour = car_colour(self.rng)
+        for g in vehicle_geoms("car", self.rng, colour)[0]:
             px, py = g.pos[0], g.pos[1]
             wx = x + math.cos(yaw) * px - math.sin(yaw) * py
             wy = y + math.sin(yaw) * px + math.cos(yaw) * py
+            quat = tuple(quat_mul(quat_yaw(yaw), np.asarray(g.quat)))
             self.layout.prims.append(Prim(g.kind, (wx, wy, g.pos[2]), g.size, "parked_vehicle",
-                                          yaw + g.yaw, "", g.rgba))
+                                          rgba=g.rgba, quat=quat))
 
     def route(self, points, width, kind, two_way=True):
         self.layout.routes.append(Route(np.asarray(points, float), width, kind, two_way))
@@ -217,7 +223,7 @@ class _Builder:
                    for cx, cy, hx, hy, _ in self.layout.buildings)
 
 
-def _car_colour(rng: np.random.Generator) -> tuple[float, float, float, float]:
+def car_colour(rng: np.random.Generator) -> tuple[float, float, float, float]:
     palette = [(0.9, 0.9, 0.9), (0.1, 0.1, 0.1), (0.55, 0.55, 0.58), (0.6, 0.1, 0.1),
                (0.1, 0.2, 0.5), (0.75, 0.75, 0.78), (0.2, 0.35, 0.25), (0.85, 0.7, 0.2)]
     base = np.array(palette[int(rng.integers(len(palette)))]) * rng.uniform(0.85, 1.1)

@@ -1,0 +1,88 @@
+"""End-to-end speed of `heightpipe run` against OpenCV's decode-only speed of the same clip.
+
+    python -m bench.pipeline_bench [CLIP] [--frames N] [--model PATH]
+
+Runs the whole pipeline in-process (capture, every stage, rerun + MCAP + CSV sinks all on,
+writing to a temporary folder) over a 640x360 clip and prints one table: decode-only
+frames/s, pipeline frames/s, their ratio, and the milliseconds each stage takes per frame.
+The default clip is the shipped sample if it is 640x360, else the real traffic clip.
+Model loading and start-up are excluded: they happen once per run, not per frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+CANDIDATE_CLIPS = [REPO_ROOT / "recordings" / "sample.mp4",
+                   REPO_ROOT.parent / "shared" / "real" / "traffic_bridge" / "car_traffic_small.mp4"]
+TARGET_FPS = 15.0
+
+
+def default_clip() -> Path:
+    for clip in CANDIDATE_CLIPS:
+        capture = cv2.VideoCapture(str(clip))
+        size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        capture.release()
+        if size == (640, 360):
+            return clip
+    raise SystemExit("no 640x360 clip found: pass one")
+
+
+def decode_fps(clip: Path, frames: int) -> float:
+    capture = cv2.VideoCapture(str(clip), cv2.CAP_FFMPEG)
+    count, start = 0, time.perf_counter()
+    while count < frames and capture.read()[0]:
+        count += 1
+    capture.release()
+    return count / (time.perf_counter() - start)
+
+
+def main() -> None:
+    from pipeline.config import load_config
+    from pipeline.runner import run_pipeline
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("clip", nargs="?", type=Path)
+    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--model", default="", help="ONNX model (default: the shipped one)")
+    args = parser.parse_args()
+    clip = args.clip or default_clip()
+
+    config = load_config(None, [])
+    config.capture.max_frames = args.frames
+    config.output.progress = False
+    config.output.rerun = "save"
+    config.output.mcap = config.output.csv = True
+    config.height.model = args.model
+    decode = decode_fps(clip, args.frames)
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = run_pipeline(str(clip), config, Path(tmp) / "bench")
+    ratio = summary.fps / decode
+
+    print(f"clip: {clip} ({summary.frames} frames)")
+    print()
+    print("| measure | value |")
+    print("|---|---|")
+    print(f"| OpenCV decode only | {decode:.1f} frames/s |")
+    print(f"| heightpipe run, all sinks on | {summary.fps:.1f} frames/s |")
+    print(f"| ratio run / decode | {ratio:.3f} |")
+    print(f"| target | >= {TARGET_FPS:.0f} frames/s: {'met' if summary.fps >= TARGET_FPS else 'NOT met'} |")
+    print()
+    total = sum(summary.stage_ms.values()) / summary.frames
+    print("| stage | ms per frame | share |")
+    print("|---|---|---|")
+    for name, ms in summary.stage_ms.items():
+        per_frame = ms / summary.frames
+        print(f"| {name} | {per_frame:.1f} | {per_frame / total:.0%} |")
+    other = 1000.0 / summary.fps - total
+    print(f"| capture (decode) and loop overhead | {other:.1f} | |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,154 @@
+"""Height maps from images with the exported ONNX model (ONNX Runtime only: no torch needed).
+
+``HeightPredictor`` follows the run-time contract (notes_for_helpers/MODEL_CONTRACT.md): resize
+any frame to the model's input with INTER_AREA, normalise, run, resize both outputs back
+bilinearly, and turn ``camera_height_fraction`` outputs into metres with the camera height.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from heightnet.normalisation import normalise
+from pipeline.errors import ConfigError, ModelError, SourceError
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+SHIPPED_MODEL = REPO_ROOT / "stages" / "models" / "heightnet.onnx"
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v"}
+
+
+@dataclass
+class HeightPrediction:
+    height_m: np.ndarray
+    """float32 H x W, height above ground in metres (frame resolution)."""
+    ground_probability: np.ndarray
+    """float32 H x W in [0, 1]."""
+
+
+def model_path_from_config(configured: str) -> Path:
+    path = Path(configured) if configured else SHIPPED_MODEL
+    if not path.is_file():
+        raise ModelError(f"height model not found: {path}")
+    return path
+
+
+class HeightPredictor:
+    def __init__(self, model_path: str | Path, threads: int = 2):
+        import onnxruntime as ort
+
+        model_path = Path(model_path)
+        if not model_path.is_file():
+            raise ModelError(f"height model not found: {model_path}")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(str(model_path), options,
+                                                providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise ModelError(f"cannot load height model {model_path}: {exc}") from None
+        meta = self.session.get_modelmeta().custom_metadata_map
+        try:
+            self.width = int(meta["heightpipe.input_width"])
+            self.height = int(meta["heightpipe.input_height"])
+            self.mean = json.loads(meta["heightpipe.mean"])
+            self.std = json.loads(meta["heightpipe.std"])
+            self.units = meta["heightpipe.output_units"]
+        except (KeyError, ValueError) as exc:
+            raise ModelError(f"{model_path} lacks heightpipe metadata ({exc})") from None
+        if self.units not in ("metres", "camera_height_fraction"):
+            raise ModelError(f"{model_path}: unknown output units {self.units!r}")
+        self.metadata = dict(meta)
+
+    @property
+    def needs_camera_height(self) -> bool:
+        return self.units == "camera_height_fraction"
+
+    def predict(self, rgb: np.ndarray, camera_height_m: float = 0.0) -> HeightPrediction:
+        """``rgb``: uint8 H x W x 3 in RGB order."""
+        if self.needs_camera_height and camera_height_m <= 0:
+            raise ConfigError("this height model predicts height relative to the camera height: "
+                              "give --camera-height (or camera.height_m)")
+        h, w = rgb.shape[:2]
+        small = cv2.resize(rgb, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        image = normalise(small, self.mean, self.std)[None]
+        height, ground_logit = self.session.run(["height", "ground_logit"], {"image": image})
+        height = cv2.resize(height[0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
+        ground_logit = cv2.resize(ground_logit[0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
+        if self.needs_camera_height:
+            height = height * camera_height_m
+        ground = 1.0 / (1.0 + np.exp(-np.clip(ground_logit, -30, 30)))
+        return HeightPrediction(height.astype(np.float32), ground.astype(np.float32))
+
+
+def height_to_png16(height_m: np.ndarray) -> np.ndarray:
+    """uint16 millimetres, 0 = ground (and undefined), saturating at 65.535 m."""
+    mm = np.nan_to_num(height_m, nan=0.0) * 1000.0
+    return np.clip(np.round(mm), 0, 65535).astype(np.uint16)
+
+
+def colourise(rgb: np.ndarray, height_m: np.ndarray, max_height_m: float = 3.0) -> np.ndarray:
+    """BGR visualisation: the frame beside its height map (turbo colour map, 0 to max_height_m)."""
+    scaled = np.clip(np.nan_to_num(height_m) / max_height_m, 0, 1)
+    colour = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+    colour[scaled < 0.02] = (colour[scaled < 0.02] * 0.35).astype(np.uint8)
+    return np.concatenate([cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), colour], axis=1)
+
+
+def iter_inputs(source: Path, every: int = 1) -> Iterator[tuple[str, np.ndarray]]:
+    """(stem, RGB frame) for an image, every image of a folder, or every Nth frame of a video."""
+    if not source.exists():
+        raise SourceError(f"input not found: {source}")
+    if source.is_dir():
+        files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not files:
+            raise SourceError(f"no images in {source}")
+        for path in files:
+            yield path.stem, _read_image(path)
+    elif source.suffix.lower() in VIDEO_SUFFIXES:
+        capture = cv2.VideoCapture(str(source))
+        if not capture.isOpened():
+            raise SourceError(f"cannot open video {source}")
+        index = 0
+        try:
+            while True:
+                ok, frame = capture.read()
+                if not ok:
+                    break
+                if index % every == 0:
+                    yield f"{source.stem}_{index:06d}", cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+                index += 1
+        finally:
+            capture.release()
+        if index == 0:
+            raise SourceError(f"no frames could be read from {source}")
+    else:
+        yield source.stem, _read_image(source)
+
+
+def _read_image(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise SourceError(f"cannot read image {path}")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def predict_to_folder(source: Path, out_dir: Path, predictor: HeightPredictor,
+                      camera_height_m: float, every: int = 1) -> list[Path]:
+    """Writes <stem>.png (uint16 mm) and <stem>_color.jpg for each input; returns the PNG paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for stem, rgb in iter_inputs(source, every):
+        prediction = predictor.predict(rgb, camera_height_m)
+        png = out_dir / f"{stem}.png"
+        cv2.imwrite(str(png), height_to_png16(prediction.height_m))
+        cv2.imwrite(str(out_dir / f"{stem}_color.jpg"), colourise(rgb, prediction.height_m))
+        written.append(png)
+    return written
