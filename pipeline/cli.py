@@ -19,10 +19,14 @@ from pipeline.errors import HeightpipeError
 COMMANDS = [
     ("run", "pipeline.run_command", "process a video, image folder, stream or webcam"),
     ("replay", "pipeline.replay", "show an MCAP recording in the rerun viewer (or convert it to .rrd)"),
+    ("synth", "synth.cli", "render a synthetic CCTV dataset with exact height ground truth"),
     ("train", "heightnet.cli_train", "train the height network on a synth dataset (resumable)"),
     ("export", "heightnet.cli_export", "export a training checkpoint to ONNX (checked against PyTorch)"),
     ("eval", "heightnet.cli_eval", "the paper's Table 1 on held-out synth scenes"),
     ("predict", "heightnet.cli_predict", "height maps (uint16 PNG, mm) for images, a folder or a video"),
+    ("batch", "pipeline.batch", "process an archive of videos, resumable"),
+    ("eval-tracks", "pipeline.eval_tracks", "tracking (HOTA, MOTA, IDF1) and per-object height error on synth sequences"),
+    ("calibrate", "pipeline.calibrate", "self-calibrate the camera from walking people; prints a [camera] config snippet"),
 ]
 
 

@@ -76,16 +76,20 @@ class MatchingConfig:
 
 @dataclass
 class TrackingConfig:
-    background: str = "mog2"
+    background: str = "knn"
     """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
     work_width: int = 320
     """Background subtraction and blob finding run at this width in pixels (0 = source width)."""
-    height_percentile: float = 97.0
+    height_percentile: float = 100.0
     """Single-frame height = this percentile of the height map inside the blob (robust top)."""
-    min_area_px: int = 80
+    min_area_px: int = 40
     """Above-ground blobs smaller than this (in source pixels) are ignored."""
     min_object_height_m: float = 0.5
     """Blobs whose top is lower than this are clutter, not objects."""
+    max_object_height_m: float = 5.0
+    """Blobs whose top is higher than this are scenery (buildings, trees), not movers (a bus is ~3.5 m)."""
+    min_foreground_share: float = 0.4
+    """Blobs less than this share foreground are clutter (rain or leaves over a static structure)."""
     min_hits: int = 3
     """Detections in a row before a track is confirmed (reported)."""
     max_misses: int = 30
@@ -96,6 +100,20 @@ class TrackingConfig:
     """Per-frame random walk of the height state: near zero, objects do not grow."""
     height_measurement_noise_m: float = 0.15
     """Base standard deviation of one frame's height measurement."""
+    motion_gate_chi2: float = 13.28
+    """Mahalanobis gate of a detection box against a track's prediction (chi-square, 4 dof; 99 %)."""
+    vote_weight: float = 0.5
+    """Weight of matched-point votes in the association cost (IoU has weight 1)."""
+    min_vote_share: float = 0.3
+    """A pair below iou_gate is still allowed when this share of the track's points votes for it."""
+    height_gate_sigma: float = 4.0
+    """Height measurements further than this many standard deviations from the track are outliers."""
+    consistency_gain: float = 1.0
+    """Matched points' height-change residual, times this, is added to the measurement noise."""
+    stature_window: int = 10
+    """Frames in a walker's stature window (upper quantile of recent heights; 0 = off)."""
+    stature_quantile: float = 0.75
+    """Quantile of the stature window fed to the height filter for people."""
 
 
 @dataclass
@@ -109,7 +127,7 @@ class CameraConfig:
     pitch_deg: float = 0.0
     """Depression of the optical axis below the horizon (0 = unknown); with height_m, a full pose."""
     roll_deg: float = 0.0
-    """Rotation about the optical axis, positive when the horizon's right end is lower."""
+    """Rotation about the optical axis, positive when the horizon's right end is higher."""
     height_std_m: float = 0.0
     """Uncertainty of height_m (self-calibration prints it; 0 = exact)."""
     self_calibrated: bool = False
@@ -154,6 +172,10 @@ class SynthConfig:
     """'paper' = the paper's five camera heights; "" = continuous 3.5-9.2 m."""
     test_fraction: float = 0.2
     """Share of layout seeds held out for testing (never trained on)."""
+    shadows: bool = True
+    """Sun shadows in clear day scenes (a 2048 shadow map; most of the render cost)."""
+    msaa: int = 0
+    """MSAA samples for the RGB pass (0, 2, 4, 8); labels and depth are never antialiased."""
 
 
 @dataclass
@@ -171,7 +193,7 @@ class TrainConfig:
     input_width: int = 320
     input_height: int = 192
     """Network input size (multiples of 16); every frame is resized to it, any aspect."""
-    steps: int = 30000
+    steps: int = 8000
     """Optimiser steps in total (a resumed run continues to this count)."""
     batch_size: int = 4
     """Pairs of consecutive frames per step (2x images)."""

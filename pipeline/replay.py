@@ -12,6 +12,7 @@ writer, no summary) replays up to its last complete chunk, with a warning.
 from __future__ import annotations
 
 import argparse
+import struct
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -66,8 +67,12 @@ class _TruncatedMcap(Exception):
 
 def replay_mcap(path: Path, save: Path | None) -> ReplayResult:
     """Logs every frame of ``path`` to a new rerun recording: ``save`` (.rrd) or a spawned viewer."""
-    from stages.rerun_sink import (VIEWER_MEMORY_LIMIT, RerunFrameLogger, heightpipe_blueprint,
-                                   open_recording)
+    from stages.rerun_sink import (VIEWER_MEMORY_LIMIT, RerunFrameLogger, close_recording,
+                                   has_display, heightpipe_blueprint, open_recording)
+
+    if save is None and not has_display():
+        raise HeightpipeError("no display for the rerun viewer (DISPLAY/WAYLAND_DISPLAY unset); "
+                              "use --save OUT.rrd")
 
     frames = _read_frames(path)
     try:
@@ -94,8 +99,7 @@ def replay_mcap(path: Path, save: Path | None) -> ReplayResult:
             except _TruncatedMcap as exc:
                 error, frame = str(exc), None
     finally:
-        rec.flush()
-        rec.disconnect()
+        close_recording(rec)
     return ReplayResult(frames=count, error=error)
 
 
@@ -125,12 +129,14 @@ def _read_frames(path: Path) -> Iterator[_FrameMessages]:
 
 
 def _describe_read_error(exc: Exception) -> str:
-    from mcap.exceptions import EndOfFile, InvalidMagic
+    from mcap.exceptions import EndOfFile, InvalidMagic, RecordLengthLimitExceeded
 
     if isinstance(exc, InvalidMagic):
         return "not an MCAP file (wrong magic bytes)"
-    if isinstance(exc, EndOfFile):
+    if isinstance(exc, (EndOfFile, struct.error)):
         return "the file is cut off mid-record"
+    if isinstance(exc, RecordLengthLimitExceeded):  # foxglove-sdk sets a chunk's length on closing it
+        return "it ends in an unfinished chunk"
     return f"{type(exc).__name__}: {exc}"
 
 
@@ -181,13 +187,14 @@ def _raw_pixels(image: Any) -> Any:
 def _match_arrays(annotations: Any) -> tuple[Any, Any, Any]:
     """/camera/matches LINE_LISTs -> prev points, current points, on-object flags."""
     import numpy as np
+    from foxglove.messages import PointsAnnotationType
 
     from stages.sink_common import MATCH_KIND_KEY
 
-    line_list = 4  # foxglove.PointsAnnotation.Type.LINE_LIST
-    prev, curr, on_object = [np.zeros((0, 2), np.float32)], [np.zeros((0, 2), np.float32)], [np.zeros(0, bool)]
+    prev, curr = [np.zeros((0, 2), np.float32)], [np.zeros((0, 2), np.float32)]
+    on_object = [np.zeros(0, bool)]
     for group in annotations.points:
-        if group.type != line_list:
+        if group.type != PointsAnnotationType.LineList.value:
             continue
         kind = next((item.value for item in group.metadata if item.key == MATCH_KIND_KEY), "")
         points = [(p.x, p.y) for p in group.points]

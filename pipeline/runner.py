@@ -115,19 +115,29 @@ def build_stages(config: Config, camera: CameraInfo) -> list[tuple[str, object]]
 
 
 def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> list[tuple[str, object]]:
+    """The sinks of this run; if one cannot be opened, those already open are closed first."""
+    from stages.sink_common import FrameEncoder
+
+    encoder = FrameEncoder.from_config(config.output)  # one JPEG per frame, shared by both sinks
     sinks: list[tuple[str, object]] = []
-    if outputs.rrd is not None:
-        from stages.rerun_sink import RerunSink
+    try:
+        if outputs.rrd is not None:
+            from stages.rerun_sink import RerunSink
 
-        sinks.append(("rerun", RerunSink(outputs.rrd, config.output.rerun, config.output, recording_name)))
-    if outputs.mcap is not None:
-        from stages.mcap_sink import McapSink
+            sinks.append(("rerun", RerunSink(outputs.rrd, config.output.rerun, config.output, recording_name,
+                                             encoder=encoder)))
+        if outputs.mcap is not None:
+            from stages.mcap_sink import McapSink
 
-        sinks.append(("mcap", McapSink(outputs.mcap, config.output)))
-    if outputs.csv is not None:
-        from stages.csv_sink import TrackCsvSink
+            sinks.append(("mcap", McapSink(outputs.mcap, config.output, encoder=encoder,
+                                           recording_name=recording_name)))
+        if outputs.csv is not None:
+            from stages.csv_sink import TrackCsvSink
 
-        sinks.append(("csv", TrackCsvSink(outputs.csv)))
+            sinks.append(("csv", TrackCsvSink(outputs.csv)))
+    except BaseException:
+        _close_all([sink for _, sink in sinks])
+        raise
     return sinks
 
 
@@ -153,8 +163,12 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path) -> RunSummary:
     width, height = source.size
     camera = build_camera(config, width, height)
     summary.camera_source = camera.source
-    stages = build_stages(config, camera)
-    sinks = build_sinks(outputs, config, prefix.name)
+    try:
+        stages = build_stages(config, camera)
+        sinks = build_sinks(outputs, config, prefix.name)
+    except BaseException:
+        source.close()
+        raise
     progress = _progress(source, config)
     start = time.perf_counter()
     try:

@@ -56,3 +56,48 @@ def assign(cost: np.ndarray, allowed: np.ndarray) -> Assignment:
         unmatched_tracks=[r for r in range(n_tracks) if r not in matched_rows],
         unmatched_detections=[c for c in range(n_detections) if c not in matched_cols],
     )
+
+
+@dataclass
+class Region:
+    """Where an object is in one frame: its box and, where known, its pixel mask (box-sized)."""
+
+    box: Box
+    mask: np.ndarray | None = None
+
+
+def points_in_regions(points: np.ndarray, regions: list[Region]) -> np.ndarray:
+    """N x R bool: point n lies on region r (inside the mask where there is one)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    inside = np.zeros((len(points), len(regions)), dtype=bool)
+    for r, region in enumerate(regions):
+        x, y, w, h = region.box
+        col = np.floor(points[:, 0] - x).astype(int)
+        row = np.floor(points[:, 1] - y).astype(int)
+        in_box = (col >= 0) & (row >= 0) & (col < int(round(w))) & (row < int(round(h)))
+        if region.mask is not None and in_box.any():
+            mh, mw = region.mask.shape
+            hit = in_box & (col < mw) & (row < mh)
+            on_mask = np.zeros(len(points), dtype=bool)
+            on_mask[hit] = region.mask[row[hit], col[hit]]
+            in_box = on_mask
+        inside[:, r] = in_box
+    return inside
+
+
+def feature_votes(prev_pts: np.ndarray, curr_pts: np.ndarray, previous: list[Region],
+                  current: list[Region]) -> np.ndarray:
+    """Share of each previous region's matched points that land on each current region.
+
+    A point matched from the previous frame to this one votes for "this blob continues that
+    track". Rows: previous regions (tracks), columns: current regions (detections); each row
+    sums to at most 1. Rows with no points are all zero (no evidence either way).
+    """
+    votes = np.zeros((len(previous), len(current)))
+    if len(prev_pts) == 0 or not previous or not current:
+        return votes
+    start = points_in_regions(prev_pts, previous)
+    end = points_in_regions(curr_pts, current)
+    counts = start.T.astype(float) @ end.astype(float)
+    totals = start.sum(axis=0).astype(float)[:, None]
+    return np.divide(counts, totals, out=np.zeros_like(counts), where=totals > 0)

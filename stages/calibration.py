@@ -29,8 +29,8 @@ A file without a pose is an intrinsic calibration; the pose then comes from ``[c
 
 ``pitch_deg`` is the depression of the optical axis below the horizon (positive = looking
 down); ``roll_deg`` the rotation about the optical axis, positive when the horizon's right end
-is lower in the image (clockwise as seen on the screen); yaw does not matter for heights and is
-0 (world +y is the horizontal viewing direction).
+is higher in the image (as synth/camera.py); yaw does not matter for heights and is 0 here
+(world +y is the horizontal viewing direction; synth's yaw 90).
 """
 
 from __future__ import annotations
@@ -77,8 +77,8 @@ def rotation_from_angles(pitch_deg: float, roll_deg: float = 0.0, yaw_deg: float
     """
     p, r, y = (math.radians(a) for a in (pitch_deg, roll_deg, yaw_deg))
     pitch = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(p), -math.sin(p)], [0.0, math.sin(p), math.cos(p)]])
-    # Rolling the camera counter-clockwise (seen from behind) turns the image clockwise.
-    roll = np.array([[math.cos(r), -math.sin(r), 0.0], [math.sin(r), math.cos(r), 0.0], [0.0, 0.0, 1.0]])
+    # Positive roll turns the camera clockwise seen from behind it: the horizon's right end rises.
+    roll = np.array([[math.cos(r), math.sin(r), 0.0], [-math.sin(r), math.cos(r), 0.0], [0.0, 0.0, 1.0]])
     yaw = np.array([[math.cos(y), -math.sin(y), 0.0], [math.sin(y), math.cos(y), 0.0], [0.0, 0.0, 1.0]])
     return roll @ pitch @ _LEVEL_CAMERA @ yaw
 
@@ -87,7 +87,7 @@ def angles_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
     """(pitch_deg, roll_deg, yaw_deg) of a world-to-camera R; inverse of rotation_from_angles."""
     forward, right = R[2], R[0]
     pitch = math.degrees(math.asin(float(np.clip(-forward[2], -1.0, 1.0))))
-    roll = math.degrees(math.atan2(right[2], -R[1, 2]))
+    roll = math.degrees(math.atan2(-right[2], -R[1, 2]))
     yaw = math.degrees(math.atan2(forward[0], forward[1]))
     return pitch, roll, yaw
 

@@ -99,11 +99,14 @@ class MotionFilter:
     def update(self, box: Box, noise_scale: float = 1.0) -> None:
         self.kf.update(box_to_z(box), R=self.measurement_noise(noise_scale))
 
-    def mahalanobis_sq(self, box: Box) -> float:
-        """Squared Mahalanobis distance of a box from the prediction (chi-square, 4 dof)."""
-        residual = box_to_z(box) - self.kf.H @ self.kf.x
+    def mahalanobis_sq(self, boxes: list[Box]) -> np.ndarray:
+        """Squared Mahalanobis distance of each box from the prediction (chi-square, 4 dof)."""
+        if len(boxes) == 0:
+            return np.zeros(0)
+        measured = np.hstack([box_to_z(box) for box in boxes]).T          # N x 4
+        residual = measured - (self.kf.H @ self.kf.x).T
         innovation = self.kf.H @ self.kf.P @ self.kf.H.T + self.measurement_noise()
-        return float(residual.T @ np.linalg.solve(innovation, residual))
+        return np.einsum("ni,ij,nj->n", residual, np.linalg.inv(innovation), residual)
 
     def warp(self, affine: np.ndarray) -> None:
         """Move the state by the background's 2x3 affine (camera shake) from the last frame."""
@@ -128,9 +131,14 @@ class MotionFilter:
 
 
 class HeightFilter:
-    """Object height in metres: a constant with a tiny random walk."""
+    """Object height in metres: a constant with a tiny random walk.
 
-    def __init__(self, height_m: float, std_m: float, process_noise_m: float):
+    Measurements come through named channels ("network", "geometry"); several in one frame are
+    applied one after the other (sequential update of independent measurements), and the
+    filter remembers which channels have contributed (``source``).
+    """
+
+    def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = "network"):
         kf = KalmanFilter(dim_x=1, dim_z=1)
         kf.x = np.array([[height_m]])
         kf.P = np.array([[std_m ** 2]])
@@ -138,6 +146,13 @@ class HeightFilter:
         kf.H = np.eye(1)
         kf.Q = np.array([[process_noise_m ** 2]])
         self.kf = kf
+        self.updates: dict[str, int] = {channel: 1}
+
+    @property
+    def source(self) -> str:
+        """'network', 'geometry' or 'fused': which channels this height is made of."""
+        used = [name for name, count in self.updates.items() if count > 0]
+        return used[0] if len(used) == 1 else "fused"
 
     @property
     def height_m(self) -> float:
@@ -154,8 +169,43 @@ class HeightFilter:
         """How many innovation standard deviations a measurement lies from the state."""
         return abs(height_m - self.height_m) / float(np.sqrt(self.kf.P[0, 0] + std_m ** 2))
 
-    def update(self, height_m: float, std_m: float) -> None:
+    def update(self, height_m: float, std_m: float, channel: str = "network") -> None:
         self.kf.update(np.array([[height_m]]), R=np.array([[std_m ** 2]]))
+        self.updates[channel] = self.updates.get(channel, 0) + 1
+
+
+class StatureWindow:
+    """Stature of a walker from its recent single-frame heights, not the gait's mean dip.
+
+    Walking lowers the head at every double support (the hip drops a few centimetres), so a
+    walker's single-frame heights are the stature minus a one-sided dip, plus noise. Their
+    mean (what a Kalman filter converges to) is the stature minus the mean dip. The upper
+    quantile ``q`` over a window of about one gait cycle sits near the top of the oscillation
+    instead, but noise pushes it up too, by about ``z_q`` standard deviations (``z_q`` the
+    normal quantile of ``q``). That share is taken off again with the window's own measurement
+    noise, and the result is never below the window's median: when noise dominates the gait,
+    the estimate falls back to the median rather than trusting a noisy upper tail.
+    """
+
+    def __init__(self, size: int, quantile: float):
+        from scipy.stats import norm
+
+        self.size = max(1, size)
+        self.quantile = quantile
+        self.noise_quantile = float(norm.ppf(quantile))
+        self.heights: list[float] = []
+        self.noises: list[float] = []
+
+    def add(self, height_m: float, noise_m: float) -> float:
+        """Adds one frame; returns the stature estimate to feed the height filter."""
+        self.heights.append(height_m)
+        self.noises.append(noise_m)
+        del self.heights[:-self.size], self.noises[:-self.size]
+        if len(self.heights) < 3:
+            return height_m
+        upper = float(np.quantile(self.heights, self.quantile))
+        noise = float(np.sqrt(np.mean(np.square(self.noises))))
+        return max(upper - self.noise_quantile * noise, float(np.median(self.heights)))
 
 
 class FilterFactory:
@@ -167,5 +217,5 @@ class FilterFactory:
     def create_motion_filter(self, box: Box) -> MotionFilter:
         return MotionFilter(box)
 
-    def create_height_filter(self, height_m: float, std_m: float) -> HeightFilter:
-        return HeightFilter(height_m, std_m, self.height_process_noise_m)
+    def create_height_filter(self, height_m: float, std_m: float, channel: str = "network") -> HeightFilter:
+        return HeightFilter(height_m, std_m, self.height_process_noise_m, channel)

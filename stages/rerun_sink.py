@@ -17,7 +17,9 @@ Timelines: ``frame`` (source frame index) and ``time`` (source time, a duration)
 
 from __future__ import annotations
 
+import os
 import sys
+import urllib.parse
 import uuid
 from pathlib import Path
 
@@ -36,6 +38,16 @@ APPLICATION_ID = "heightpipe"
 VIEWER_MEMORY_LIMIT = "2GB"
 """Spawned viewer's limit: it drops the oldest data beyond this (its default is 75% of RAM)."""
 RERUN_MODES = ("save", "spawn", "serve")
+WEB_VIEWER_PORT = 9090
+"""rerun's default web viewer port (serve mode)."""
+FLUSH_TIMEOUT_S = 30.0
+"""close() waits at most this long for a viewer to take the last data."""
+
+
+def has_display() -> bool:
+    if not sys.platform.startswith("linux"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def heightpipe_blueprint() -> rrb.Blueprint:
@@ -111,8 +123,7 @@ class RerunFrameLogger:
         curr = np.asarray(curr_pts, dtype=np.float32).reshape(-1, 2)
         colors = np.where(np.asarray(on_object, dtype=bool).reshape(-1, 1),
                           np.uint8(OBJECT_MATCH_RGB), np.uint8(BACKGROUND_MATCH_RGB))
-        self._log("/camera/matches", rr.Arrows2D(origins=prev, vectors=curr - prev,
-                                                 colors=colors.astype(np.uint8)))
+        self._log("/camera/matches", rr.Arrows2D(origins=prev, vectors=curr - prev, colors=colors))
 
     def log_tracks(self, tracks: list[Track]) -> None:
         """Draws the confirmed ones; always logs (an empty list clears last frame's boxes)."""
@@ -136,6 +147,15 @@ def open_recording(recording_name: str) -> rr.RecordingStream:
     return rec
 
 
+def close_recording(rec: rr.RecordingStream) -> None:
+    """Flushes every sink and finishes files (footer); a gone viewer only warns."""
+    try:
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+    except RuntimeError as exc:  # e.g. the viewer window was closed: the file sink is still fine
+        print(f"heightpipe: warning: rerun: {exc}", file=sys.stderr)
+    rec.disconnect()
+
+
 class RerunSink:
     """Writes PREFIX.rrd; in 'spawn' and 'serve' modes also streams to a viewer."""
 
@@ -144,6 +164,9 @@ class RerunSink:
         if mode not in RERUN_MODES:
             raise ConfigError(f"output.rerun must be one of {', '.join(RERUN_MODES)} or off, "
                               f"got {mode!r}")
+        if mode == "spawn" and not has_display():
+            raise HeightpipeError("output.rerun=spawn needs a display for the viewer (none found: "
+                                  "DISPLAY/WAYLAND_DISPLAY unset); use 'serve' or 'save'")
         check_output_config(config)
         self.path = Path(path)
         self.encoder = encoder or FrameEncoder.from_config(config)
@@ -156,11 +179,13 @@ class RerunSink:
                 self.rec.spawn(connect=False, memory_limit=VIEWER_MEMORY_LIMIT)
                 self.rec.set_sinks(rr.GrpcSink(), rr.FileSink(self.path), default_blueprint=blueprint)
             else:
-                server = rr.GrpcServerSink()
+                server = rr.GrpcServerSink()  # all interfaces, port 9876: viewable from elsewhere
                 self.rec.set_sinks(server, rr.FileSink(self.path), default_blueprint=blueprint)
-                rr.serve_web_viewer(connect_to=server.uri, open_browser=False)
-                print(f"rerun: web viewer at http://localhost:9090/?url={server.uri} "
-                      f"(gRPC {server.uri})", file=sys.stderr)
+                uri = server.uri.replace("0.0.0.0", "127.0.0.1")
+                rr.serve_web_viewer(web_port=WEB_VIEWER_PORT, connect_to=uri, open_browser=False)
+                print(f"rerun: web viewer at http://127.0.0.1:{WEB_VIEWER_PORT}/?url="
+                      f"{urllib.parse.quote(uri, safe=':/')} (native viewer: rerun {uri})",
+                      file=sys.stderr)
         except (OSError, RuntimeError, ValueError) as exc:
             raise HeightpipeError(f"cannot start rerun output ({mode}): {exc}") from None
         self.logger = RerunFrameLogger(self.rec)
@@ -188,5 +213,4 @@ class RerunSink:
         if self._closed:
             return
         self._closed = True
-        self.rec.flush()
-        self.rec.disconnect()
+        close_recording(self.rec)

@@ -3,10 +3,24 @@
 ``ObjectTracker`` is a plain class (no packets, no I/O): ``update(detections, matches)`` once
 per frame returns every live track. ``TrackingStage`` wraps it for the pipeline.
 
-Per frame: warp predictions by the camera shake, predict, associate (Hungarian on IoU with a
-gate), update matched tracks (box and height filters), age the others, start tentative tracks
-from leftover detections. A track is confirmed after ``min_hits`` hits in a row and dropped
-after ``max_misses`` frames without one; a tentative track is dropped at its first miss.
+One frame, in order:
+
+1. Camera shake: the background's affine from the last frame moves every track's box state
+   (and its last observation), never its height.
+2. Predict every track (constant-velocity box, near-constant height).
+3. Associate (Hungarian) on a cost mixing IoU, matched-point votes, the Mahalanobis distance
+   of the box and the height difference; pairs outside the motion gate, or with neither
+   overlap nor votes, are not allowed.
+4. Second chance (OC-SORT's observation-centric recovery): tracks left over are matched on
+   the IoU of their *last observed* box, which does not drift while the object is hidden.
+5. A track seen again after a gap is re-updated along a straight virtual path from its last
+   observation (OC-SORT's observation-centric re-update), so the velocity that drifted while
+   it was hidden does not carry on.
+6. Height: the network's single-frame height (for walkers, the upper quantile of a short
+   window: stature, not the gait's mean dip) and, where the camera is calibrated, the geometry
+   height are fused into the height filter; outliers beyond ``height_gate_sigma`` are skipped.
+7. Tracks are confirmed after ``min_hits`` hits in a row and dropped after ``max_misses``
+   frames without a hit; a tentative track is dropped at its first miss.
 """
 
 from __future__ import annotations
@@ -19,8 +33,25 @@ import numpy as np
 
 from pipeline.config import TrackingConfig
 from pipeline.packets import Detection, FeatureMatches, FramePacket, Track
-from stages.association import assign, iou_matrix
-from stages.kalman import FilterFactory, HeightFilter, MotionFilter
+from stages.association import Region, assign, feature_votes, iou_matrix
+from stages.kalman import FilterFactory, HeightFilter, MotionFilter, MotionSnapshot, StatureWindow
+
+# Cost weights next to IoU (weight 1): the motion term is the Mahalanobis distance as a share
+# of the gate, the height term the squared height difference in units of the gate.
+MOTION_WEIGHT = 0.3
+HEIGHT_WEIGHT = 0.5
+# A height filter is trusted to reject outliers only after this many measurements; after this
+# many rejections in a row it is restarted (the first measurements were the outliers).
+HEIGHT_GATE_AFTER = 5
+HEIGHT_RESTART_AFTER = 8
+# A detection whose top edge lies this share of the box height below the predicted top has
+# lost its top (occluded head, merged blob split): its height is trusted this much less.
+TOP_LOST_SHARE = 0.15
+TOP_LOST_NOISE_FACTOR = 3.0
+# Gait correction applies to these classes.
+WALKER_CLASSES = ("person",)
+# Classes whose geometry height only stands in when the network has none (see _update_height).
+GEOMETRY_ONLY_AS_FALLBACK = ("vehicle",)
 
 
 @dataclass
@@ -30,6 +61,7 @@ class _TrackState:
     track_id: int
     motion: MotionFilter
     height: HeightFilter | None
+    stature: StatureWindow
     hits: int = 1
     hit_streak: int = 1
     misses: int = 0
@@ -38,23 +70,29 @@ class _TrackState:
     class_votes: Counter = field(default_factory=Counter)
     ground_xy_m: tuple[float, float] | None = None
     updated: bool = True
+    last_observation: tuple[float, float, float, float] | None = None
+    """Box of the last associated detection, in the current frame's coordinates."""
+    snapshot: MotionSnapshot | None = None
+    """Motion state right after the last observation (current frame's coordinates)."""
+    last_region: Region | None = None
+    """Where the object was in the previous frame, for matched-point votes."""
+    height_rejections: int = 0
 
     @property
     def cls(self) -> str:
         return self.class_votes.most_common(1)[0][0] if self.class_votes else "other"
 
     def to_track(self) -> Track:
-        height_m = self.height.height_m if self.height is not None else float("nan")
-        height_std_m = self.height.std_m if self.height is not None else float("inf")
+        has_height = self.height is not None
         return Track(
             track_id=self.track_id,
             box=self.motion.box,
             cls=self.cls,
-            height_m=height_m,
-            height_std_m=height_std_m,
+            height_m=self.height.height_m if has_height else float("nan"),
+            height_std_m=self.height.std_m if has_height else float("inf"),
             confirmed=self.confirmed,
             ground_xy_m=self.ground_xy_m,
-            height_source="network",
+            height_source=self.height.source if has_height else "network",
             hits=self.hits,
             age=self.age,
             updated=self.updated,
@@ -62,12 +100,12 @@ class _TrackState:
 
 
 class ObjectTracker:
-    """SORT-like tracker whose tracks also carry a Kalman-filtered object height.
+    """Tracker whose tracks also carry a Kalman-filtered object height.
 
     Parameters
     ----------
     config : TrackingConfig
-        ``min_hits``, ``max_misses``, ``iou_gate`` and the height noise settings.
+        Gates, cost weights, track life (``min_hits``, ``max_misses``) and height settings.
     filters : FilterFactory, optional
         Builds each track's motion and height filters (default: filterpy-based).
     """
@@ -81,40 +119,128 @@ class ObjectTracker:
     def update(self, detections: list[Detection], matches: FeatureMatches | None = None) -> list[Track]:
         """Advance every track by one frame and fold in this frame's detections."""
         if matches is not None:
-            camera_motion = np.asarray(matches.camera_motion, dtype=float)
-            if not np.allclose(camera_motion, np.eye(2, 3)):
-                for track in self.tracks:
-                    track.motion.warp(camera_motion)
+            self._compensate_camera_motion(np.asarray(matches.camera_motion, dtype=float))
         for track in self.tracks:
             track.motion.predict()
             if track.height is not None:
                 track.height.predict()
             track.age += 1
 
-        predicted = [t.motion.box for t in self.tracks]
-        iou = iou_matrix(predicted, [d.box for d in detections])
-        result = assign(1.0 - iou, iou >= self.config.iou_gate)
+        cost, allowed = self._association_cost(detections, matches)
+        result = assign(cost, allowed)
+        matched = list(result.matches)
+        leftover_tracks, leftover_detections = self._recover(result.unmatched_tracks,
+                                                             result.unmatched_detections, detections)
+        matched += [(r, c) for r, c in zip(leftover_tracks[0], leftover_detections[0])]
 
-        for row, col in result.matches:
+        for row, col in matched:
             self._apply_detection(self.tracks[row], detections[col])
-        for row in result.unmatched_tracks:
-            track = self.tracks[row]
-            track.misses += 1
-            track.hit_streak = 0
-            track.updated = False
+        for row in leftover_tracks[1]:
+            self._miss(self.tracks[row])
         self.tracks = [t for t in self.tracks if self._alive(t)]
-        for col in result.unmatched_detections:
+        for col in leftover_detections[1]:
             self._start_track(detections[col])
         return [t.to_track() for t in self.tracks]
+
+    # -- association -----------------------------------------------------------------------
+
+    def _compensate_camera_motion(self, camera_motion: np.ndarray) -> None:
+        if np.allclose(camera_motion, np.eye(2, 3), atol=1e-4):
+            return
+        for track in self.tracks:
+            track.motion.warp(camera_motion)
+            if track.last_observation is not None:
+                track.last_observation = _warp_box(track.last_observation, camera_motion)
+            if track.snapshot is not None:
+                saved = self.filters.create_motion_filter((0.0, 0.0, 1.0, 1.0))
+                saved.restore(track.snapshot)
+                saved.warp(camera_motion)
+                track.snapshot = saved.snapshot()
+
+    def _association_cost(self, detections: list[Detection],
+                          matches: FeatureMatches | None) -> tuple[np.ndarray, np.ndarray]:
+        """Cost and allowed-pair matrices, tracks x detections."""
+        n_tracks, n_detections = len(self.tracks), len(detections)
+        if n_tracks == 0 or n_detections == 0:
+            return np.zeros((n_tracks, n_detections)), np.zeros((n_tracks, n_detections), bool)
+        iou = iou_matrix([t.motion.box for t in self.tracks], [d.box for d in detections])
+        votes = self._votes(detections, matches)
+        gate = self.config.motion_gate_chi2
+        boxes = [d.box for d in detections]
+        distance = np.array([t.motion.mahalanobis_sq(boxes) for t in self.tracks])
+        height_gap = self._height_gaps(detections)
+        allowed = ((iou >= self.config.iou_gate) | (votes >= self.config.min_vote_share)) & (distance <= gate)
+        allowed &= height_gap <= 1.0
+        cost = ((1.0 - iou) + self.config.vote_weight * (1.0 - votes)
+                + MOTION_WEIGHT * np.minimum(distance / gate, 1.0) + HEIGHT_WEIGHT * np.minimum(height_gap, 1.0))
+        return cost, allowed
+
+    def _votes(self, detections: list[Detection], matches: FeatureMatches | None) -> np.ndarray:
+        """Share of each track's matched points from the last frame that land on each detection."""
+        if matches is None or len(matches.prev_pts) == 0:
+            return np.zeros((len(self.tracks), len(detections)))
+        on_object = np.asarray(matches.on_object, dtype=bool)
+        previous = [t.last_region or Region(t.motion.box) for t in self.tracks]
+        current = [Region(d.box, d.mask) for d in detections]
+        return feature_votes(matches.prev_pts[on_object], matches.curr_pts[on_object], previous, current)
+
+    def _height_gaps(self, detections: list[Detection]) -> np.ndarray:
+        """Height difference over the gate width (1 = at the gate); 0 where a height is unknown.
+
+        Only settled tracks (enough height measurements) are compared: a fresh track's height
+        is too uncertain to veto anything.
+        """
+        gaps = np.zeros((len(self.tracks), len(detections)))
+        for row, track in enumerate(self.tracks):
+            if track.height is None or sum(track.height.updates.values()) < HEIGHT_GATE_AFTER:
+                continue
+            for col, detection in enumerate(detections):
+                if _usable(detection.height_m, detection.height_noise_m):
+                    residual = track.height.normalized_residual(detection.height_m, detection.height_noise_m)
+                    gaps[row, col] = (residual / self.config.height_gate_sigma) ** 2
+        return gaps
+
+    def _recover(self, track_rows: list[int], detection_cols: list[int],
+                 detections: list[Detection]) -> tuple[tuple[list[int], list[int]], tuple[list[int], list[int]]]:
+        """Second round on the last observed boxes. Returns ((matched rows, unmatched rows),
+        (matched cols, unmatched cols)), matched lists aligned pair by pair."""
+        candidates = [r for r in track_rows if self.tracks[r].last_observation is not None
+                      and self.tracks[r].confirmed]
+        if not candidates or not detection_cols:
+            return ([], track_rows), ([], detection_cols)
+        iou = iou_matrix([self.tracks[r].last_observation for r in candidates],
+                         [detections[c].box for c in detection_cols])
+        gaps = self._height_gaps([detections[c] for c in detection_cols])[candidates]
+        allowed = (iou >= self.config.iou_gate) & (gaps <= 1.0)
+        result = assign(1.0 - iou + HEIGHT_WEIGHT * np.minimum(gaps, 1.0), allowed)
+        rows = [candidates[r] for r, _ in result.matches]
+        cols = [detection_cols[c] for _, c in result.matches]
+        return ((rows, [r for r in track_rows if r not in rows]),
+                (cols, [c for c in detection_cols if c not in cols]))
+
+    # -- track life ------------------------------------------------------------------------
 
     def _alive(self, track: _TrackState) -> bool:
         if not track.confirmed:
             return track.misses == 0
         return track.misses <= self.config.max_misses
 
+    def _miss(self, track: _TrackState) -> None:
+        track.misses += 1
+        track.hit_streak = 0
+        track.updated = False
+        track.last_region = Region(track.motion.box)
+
     def _apply_detection(self, track: _TrackState, detection: Detection) -> None:
-        track.motion.update(detection.box)
-        self._update_height(track, detection)
+        predicted_box = track.motion.box
+        gap = track.misses + 1                     # frames since the last observation
+        if gap > 1 and track.snapshot is not None and track.last_observation is not None:
+            self._reupdate_along_virtual_path(track, detection.box, gap)
+        else:
+            track.motion.update(detection.box)
+        track.snapshot = track.motion.snapshot()
+        track.last_observation = detection.box
+        track.last_region = Region(detection.box, detection.mask)
         track.hits += 1
         track.hit_streak += 1
         track.misses = 0
@@ -122,28 +248,66 @@ class ObjectTracker:
         track.class_votes[detection.cls] += 1
         if detection.ground_xy_m is not None:
             track.ground_xy_m = detection.ground_xy_m
+        self._update_height(track, detection, _top_lost(predicted_box, detection.box))
         if track.hit_streak >= self.config.min_hits:
             track.confirmed = True
 
-    def _update_height(self, track: _TrackState, detection: Detection) -> None:
-        if not _usable(detection.height_m, detection.height_noise_m):
-            return
-        if track.height is None:
-            track.height = self.filters.create_height_filter(detection.height_m, detection.height_noise_m)
-        else:
-            track.height.update(detection.height_m, detection.height_noise_m)
+    def _reupdate_along_virtual_path(self, track: _TrackState, box, gap: int) -> None:
+        """OC-SORT re-update: replay the hidden frames with observations on a straight line."""
+        start = np.asarray(track.last_observation, dtype=float)
+        end = np.asarray(box, dtype=float)
+        track.motion.restore(track.snapshot)
+        for step in range(1, gap):
+            virtual = start + (end - start) * step / gap
+            track.motion.predict()
+            track.motion.update(tuple(virtual))
+        track.motion.predict()
+        track.motion.update(box)
+
+    def _update_height(self, track: _TrackState, detection: Detection, top_lost: bool) -> None:
+        """Fold in the network height, then the geometry height (sequential update)."""
+        channels = []
+        if _usable(detection.height_m, detection.height_noise_m):
+            height, noise = detection.height_m, detection.height_noise_m
+            if top_lost:
+                noise *= TOP_LOST_NOISE_FACTOR
+            if self.config.stature_window > 0 and track.cls in WALKER_CLASSES:
+                height = track.stature.add(height, noise)
+            channels.append(("network", height, noise))
+        # Geometry assumes the top lies above the foot. For vehicles the blob's top is the far
+        # roof edge, metres behind the foot, and on generator data their geometry heights came out
+        # ~0.8 m high (median): used for them only when the network gives no height at all.
+        geometry_trusted = track.cls not in GEOMETRY_ONLY_AS_FALLBACK or not channels
+        if geometry_trusted and _usable(detection.geometry_height_m, detection.geometry_noise_m):
+            noise = detection.geometry_noise_m * (TOP_LOST_NOISE_FACTOR if top_lost else 1.0)
+            channels.append(("geometry", detection.geometry_height_m, noise))
+        for channel, height, noise in channels:
+            if track.height is None:
+                track.height = self.filters.create_height_filter(height, noise, channel)
+                continue
+            settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
+            if settled and track.height.normalized_residual(height, noise) > self.config.height_gate_sigma:
+                track.height_rejections += 1
+                if track.height_rejections >= HEIGHT_RESTART_AFTER:
+                    track.height = self.filters.create_height_filter(height, noise, channel)
+                    track.height_rejections = 0
+                continue
+            track.height_rejections = 0
+            track.height.update(height, noise, channel)
 
     def _start_track(self, detection: Detection) -> None:
-        height = None
-        if _usable(detection.height_m, detection.height_noise_m):
-            height = self.filters.create_height_filter(detection.height_m, detection.height_noise_m)
         track = _TrackState(
             track_id=self._next_id,
             motion=self.filters.create_motion_filter(detection.box),
-            height=height,
+            height=None,
+            stature=StatureWindow(self.config.stature_window, self.config.stature_quantile),
             class_votes=Counter({detection.cls: 1}),
             ground_xy_m=detection.ground_xy_m,
+            last_observation=detection.box,
+            last_region=Region(detection.box, detection.mask),
         )
+        track.snapshot = track.motion.snapshot()
+        self._update_height(track, detection, top_lost=False)
         track.confirmed = self.config.min_hits <= 1
         self._next_id += 1
         self.tracks.append(track)
@@ -151,7 +315,21 @@ class ObjectTracker:
 
 def _usable(height_m: float | None, noise_m: float | None) -> bool:
     return (height_m is not None and noise_m is not None
-            and np.isfinite(height_m) and np.isfinite(noise_m) and noise_m > 0)
+            and bool(np.isfinite(height_m)) and bool(np.isfinite(noise_m)) and noise_m > 0)
+
+
+def _top_lost(predicted_box, box) -> bool:
+    """The detection's top edge is well below the predicted one: its top is hidden or cut."""
+    return box[1] - predicted_box[1] > TOP_LOST_SHARE * predicted_box[3]
+
+
+def _warp_box(box, affine: np.ndarray):
+    x, y, w, h = box
+    linear, shift = affine[:, :2], affine[:, 2]
+    centre = linear @ np.array([x + w / 2.0, y + h / 2.0]) + shift
+    scale = float(np.sqrt(abs(np.linalg.det(linear))))
+    w, h = w * scale, h * scale
+    return (float(centre[0] - w / 2.0), float(centre[1] - h / 2.0), float(w), float(h))
 
 
 class TrackingStage:

@@ -61,6 +61,8 @@ class Geom:
     fromto: tuple[float, ...] | None = None
     light: str = ""
     """'head' / 'tail' for vehicle lamps that glow at night."""
+    finish: str = "matte"
+    """'matte', 'paint' or 'glass': how shiny the surface is."""
 
 
 @dataclass
@@ -135,6 +137,7 @@ def _clothes(rng: np.random.Generator) -> tuple[float, float, float, float]:
 @dataclass
 class Pedestrian(Mover):
     leg_length: float = 0.9
+    thigh_length: float = 0.42
     hip_half_width: float = 0.09
     shoulder_half_width: float = 0.2
     shoulder_height: float = 0.5  # above the hip
@@ -143,73 +146,107 @@ class Pedestrian(Mover):
     phase0: float = 0.0
 
     def part_poses(self, t, xy, yaw):
-        theta = 0.0
-        if self.speed > 0:
-            phase = self.phase0 + math.pi * self.arc(t) / self.step_length
-            theta = self.swing_amplitude * math.sin(phase)
-        # Rigid legs would drop the hip by L(1 - cos theta); real knees halve that.
-        hip_z = self.leg_length - 0.55 * self.leg_length * (1.0 - math.cos(theta))
+        phase = self.phase0 + (math.pi * self.arc(t) / self.step_length if self.speed > 0 else 0.0)
+        amplitude = self.swing_amplitude if self.speed > 0 else 0.0
+        # Per leg: hip angle (forward positive) and knee flexion, which peaks mid-swing
+        # (while the leg moves forward) and is ~0 in stance.
+        legs = []
+        for leg_phase in (phase, phase + math.pi):
+            hip_angle = amplitude * math.sin(leg_phase)
+            knee = 1.1 * (amplitude / 0.4) * max(0.0, math.cos(leg_phase)) ** 1.5
+            legs.append((hip_angle, knee))
+        stance = min(legs, key=lambda hk: hk[1])[0]
+        # A rigid stance leg would drop the hip by L(1 - cos theta); real gait about half that.
+        hip_z = self.leg_length - 0.55 * self.leg_length * (1.0 - math.cos(stance))
         q_yaw = quat_yaw(yaw)
-        hip = _place(xy, yaw, np.array([0.0, 0.0, hip_z]))
-        poses = [(hip, q_yaw)]
-        for side, swing in ((1, theta), (-1, -theta)):
-            joint = _place(xy, yaw, np.array([0.0, side * self.hip_half_width, hip_z]))
-            poses.append((joint, quat_mul(q_yaw, quat_pitch(-swing))))
-        for side, swing in ((1, -0.8 * theta), (-1, 0.8 * theta)):
-            joint = _place(xy, yaw, np.array([0.0, side * self.shoulder_half_width,
-                                              hip_z + self.shoulder_height]))
+        poses = [(_place(xy, yaw, np.array([0.0, 0.0, hip_z])), q_yaw)]
+        for side, (hip_angle, knee) in zip((1, -1), legs):
+            joint = np.array([0.0, side * self.hip_half_width, hip_z])
+            thigh_dir = np.array([math.sin(hip_angle), 0.0, -math.cos(hip_angle)])
+            knee_pos = joint + thigh_dir * self.thigh_length
+            poses.append((_place(xy, yaw, joint), quat_mul(q_yaw, quat_pitch(-hip_angle))))
+            poses.append((_place(xy, yaw, knee_pos), quat_mul(q_yaw, quat_pitch(-(hip_angle - knee)))))
+        arm_swing = 0.8 * amplitude * math.sin(phase)
+        for side, swing in ((1, -arm_swing), (-1, arm_swing)):
+            joint = _place(xy, yaw, np.array([0.0, side * self.shoulder_half_width, hip_z + self.shoulder_height]))
             poses.append((joint, quat_mul(q_yaw, quat_pitch(-swing))))
         return poses
 
 
 def make_pedestrian(mover_id: int, rng: np.random.Generator, stature: float, route, offset, speed,
                     s0, yaw0=0.0) -> Pedestrian:
-    """A pedestrian whose top of head is exactly ``stature`` when standing upright."""
+    """A pedestrian whose top (hair or hat) is exactly ``stature`` when standing upright."""
     child = stature < 1.45
     k = stature / 1.75
     build = rng.uniform(0.85, 1.2)
     head_h = stature * (0.155 if child else 0.13)
     leg = stature * (0.47 if child else 0.52)
+    thigh = 0.47 * leg
     shoulder_z = stature * (0.8 if child else 0.82)
     torso_hw = 0.17 * k * build
+    torso_d = 0.1 * k * build
     arm_r, leg_r = 0.045 * k * build, 0.065 * k * build
     skin = (*SKIN[int(rng.integers(len(SKIN)))], 1.0)
     hair = (*HAIR[int(rng.integers(len(HAIR)))], 1.0)
     shirt, trousers = _clothes(rng), _clothes(rng)
+    shoes = (*(np.array([0.1, 0.08, 0.07]) + rng.uniform(0, 0.5) * rng.random(3)).tolist(), 1.0)
     hx, hy, hz = 0.36 * head_h, 0.32 * head_h, 0.5 * head_h
-    hair_z = stature - 1.04 * hz - leg  # hair centre relative to the hip
+    top = stature - leg  # relative to the hip
+    hair_z = top - 1.04 * hz
     upper = [
-        Geom("box", (0.0, 0.0, (shoulder_z - leg) / 2 - 0.02),
-             (0.1 * k * build, torso_hw, (shoulder_z - leg) / 2 + 0.04), shirt),
-        Geom("capsule", (0, 0, 0), (0.1 * k * build,), shirt,
+        Geom("box", (0.0, 0.0, (shoulder_z - leg) / 2 - 0.02), (torso_d, torso_hw, (shoulder_z - leg) / 2 + 0.04), shirt),
+        Geom("capsule", (0, 0, 0), (torso_d,), shirt,
              fromto=(0.0, -torso_hw + 0.05, shoulder_z - leg - 0.03, 0.0, torso_hw - 0.05, shoulder_z - leg - 0.03)),
         Geom("cylinder", (0.0, 0.0, shoulder_z - leg + 0.04), (0.045 * k, 0.05), skin),
         Geom("ellipsoid", (0.0, 0.0, hair_z - 0.015), (hx, hy, hz), skin),
-        Geom("ellipsoid", (-0.012, 0.0, hair_z), (1.06 * hx, 1.06 * hy, 1.04 * hz), hair),
     ]
+    headwear = rng.random()
+    if headwear < 0.1 and not child:  # cap with a brim
+        cap = _clothes(rng)
+        upper += [Geom("ellipsoid", (-0.005, 0.0, top - 0.55 * hz), (1.07 * hx, 1.07 * hy, 0.55 * hz), cap),
+                  Geom("box", (hx * 0.9, 0.0, top - 0.5 * hz), (0.45 * hx, 0.8 * hy, 0.012), cap)]
+    elif headwear < 0.18:  # beanie or hood
+        upper.append(Geom("ellipsoid", (-0.01, 0.0, hair_z), (1.1 * hx, 1.1 * hy, 1.04 * hz), _clothes(rng)))
+    else:
+        upper.append(Geom("ellipsoid", (-0.012, 0.0, hair_z), (1.06 * hx, 1.06 * hy, 1.04 * hz), hair))
+    garment = rng.random()
+    if garment < 0.22 and not child:  # long coat over the thighs
+        coat = _clothes(rng)
+        low = -0.28 * leg
+        upper.append(Geom("box", (0.0, 0.0, (low + shoulder_z - leg - 0.04) / 2),
+                          (torso_d + 0.02, torso_hw + 0.015, (shoulder_z - leg - 0.04 - low) / 2), coat))
+        shirt = coat
+    elif garment < 0.32:  # skirt or dress
+        upper.append(Geom("cylinder", (0.0, 0.0, -0.16 * leg), (torso_hw * 0.95, 0.2 * leg), trousers))
     if rng.random() < 0.3 and not child:
         bag = _clothes(rng)
-        upper.append(Geom("box", (-0.1 * k * build - 0.08, 0.0, (shoulder_z - leg) * 0.6),
-                          (0.08, 0.14 * k, 0.18 * k), bag))
+        upper.append(Geom("box", (-torso_d - 0.08, 0.0, (shoulder_z - leg) * 0.6), (0.08, 0.14 * k, 0.18 * k), bag))
+    elif rng.random() < 0.2 and not child:  # hand or shopping bag at the side
+        bag = _clothes(rng)
+        upper.append(Geom("box", (0.0, (torso_hw + 0.09) * (1 if rng.random() < 0.5 else -1), -0.12 * leg),
+                          (0.12, 0.04, 0.15), bag))
+    shin = leg - thigh
     legs = []
     for _ in range(2):
-        legs.append([Geom("capsule", (0, 0, 0), (leg_r,), trousers,
-                          fromto=(0.0, 0.0, 0.0, 0.0, 0.0, -(leg - leg_r))),
-                     Geom("box", (0.05 * k, 0.0, -(leg - 0.035 * k)), (0.12 * k, 0.05 * k, 0.035 * k),
-                          (0.12, 0.1, 0.08, 1.0))])
+        legs.append([Geom("capsule", (0, 0, 0), (leg_r,), trousers, fromto=(0.0, 0.0, 0.0, 0.0, 0.0, -thigh))])
+        legs.append([Geom("capsule", (0, 0, 0), (leg_r * 0.85,), trousers,
+                          fromto=(0.0, 0.0, 0.0, 0.0, 0.0, -(shin - leg_r * 0.85))),
+                     Geom("box", (0.05 * k, 0.0, -(shin - 0.035 * k)), (0.12 * k, 0.05 * k, 0.035 * k), shoes)])
     arms = []
     arm_len = 0.38 * stature
+    upper_arm = (arm_len - 2 * arm_r) * 0.55
+    elbow = float(rng.uniform(0.1, 0.45))
+    hand = np.array([math.sin(elbow), 0.0, -math.cos(elbow)]) * (arm_len - upper_arm - arm_r)
     for _ in range(2):
-        arms.append([Geom("capsule", (0, 0, 0), (arm_r,), shirt,
-                          fromto=(0.0, 0.0, 0.0, 0.0, 0.0, -(arm_len - 2 * arm_r) * 0.62)),
-                     Geom("capsule", (0, 0, 0), (arm_r * 0.9,), skin,
-                          fromto=(0.0, 0.0, -(arm_len - 2 * arm_r) * 0.62, 0.0, 0.0, -(arm_len - arm_r)))])
+        arms.append([Geom("capsule", (0, 0, 0), (arm_r,), shirt, fromto=(0.0, 0.0, 0.0, 0.0, 0.0, -upper_arm)),
+                     Geom("capsule", (0, 0, 0), (arm_r * 0.9,), shirt if rng.random() < 0.6 else skin,
+                          fromto=(0.0, 0.0, -upper_arm, hand[0], 0.0, -upper_arm + hand[2]))])
     step = 0.41 * stature * float(np.clip(math.sqrt(max(speed, 0.1) / 1.35), 0.75, 1.2))
     return Pedestrian(
         id=mover_id, cls="pedestrian", nominal_height_m=stature, route=route, offset_m=offset,
-        speed=speed, s0=s0, parts=[upper, legs[0], legs[1], arms[0], arms[1]],
+        speed=speed, s0=s0, parts=[upper, legs[0], legs[1], legs[2], legs[3], arms[0], arms[1]],
         length_m=0.35, width_m=2 * torso_hw + 4 * arm_r, yaw0=yaw0,
-        leg_length=leg, hip_half_width=0.09 * k, shoulder_half_width=torso_hw + arm_r,
+        leg_length=leg, thigh_length=thigh, hip_half_width=0.09 * k, shoulder_half_width=torso_hw + arm_r,
         shoulder_height=shoulder_z - leg - 0.06, step_length=step,
         swing_amplitude=math.asin(min(0.9, step / (2 * leg))), phase0=float(rng.uniform(0, 2 * math.pi)))
 
@@ -317,40 +354,41 @@ def vehicle_geoms(cls: str, rng: np.random.Generator, colour) -> tuple[list[Geom
     L, W, H = float(rng.uniform(l0, l1)), float(rng.uniform(w0, w1)), float(rng.uniform(h0, h1))
     glass = (0.1, 0.13, 0.17, 1.0)
     dark = (0.06, 0.06, 0.06, 1.0)
+    colour = tuple(colour)
     head = (0.95, 0.95, 0.85, 1.0)
     tail = (0.7, 0.05, 0.05, 1.0)
     g: list[Geom] = []
     if cls == "car":
         r = float(rng.uniform(0.3, 0.34))
         belt = 0.52 * H + 0.12
-        g.append(Geom("box", (0.0, 0.0, (0.28 + belt) / 2), (L / 2, W / 2, (belt - 0.28) / 2), colour))
+        g.append(Geom("box", (0.0, 0.0, (0.28 + belt) / 2), (L / 2, W / 2, (belt - 0.28) / 2), colour, finish="paint"))
         cab_l = L * float(rng.uniform(0.45, 0.55))
         cab_x = -L * float(rng.uniform(0.02, 0.1))
-        g.append(Geom("box", (cab_x, 0.0, (belt + H - 0.04) / 2), (cab_l / 2, W / 2 - 0.08, (H - 0.04 - belt) / 2), glass))
-        g.append(Geom("box", (cab_x, 0.0, H - 0.02), (cab_l / 2 - 0.1, W / 2 - 0.12, 0.02), colour))
+        g.append(Geom("box", (cab_x, 0.0, (belt + H - 0.04) / 2), (cab_l / 2, W / 2 - 0.08, (H - 0.04 - belt) / 2), glass, finish="glass"))
+        g.append(Geom("box", (cab_x, 0.0, H - 0.02), (cab_l / 2 - 0.1, W / 2 - 0.12, 0.02), colour, finish="paint"))
         lamp_z, wheel_x = belt - 0.12, (L / 2 - 0.8)
         wheels = [(wheel_x, s) for s in (-1, 1)] + [(-wheel_x, s) for s in (-1, 1)]
     elif cls == "van":
         r = 0.35
-        g.append(Geom("box", (0.0, 0.0, (0.32 + H) / 2), (L / 2, W / 2, (H - 0.32) / 2), colour))
-        g.append(Geom("box", (L / 2 - 0.55, 0.0, (1.15 + H - 0.2) / 2), (0.56, W / 2 + 0.01, (H - 0.2 - 1.15) / 2), glass))
+        g.append(Geom("box", (0.0, 0.0, (0.32 + H) / 2), (L / 2, W / 2, (H - 0.32) / 2), colour, finish="paint"))
+        g.append(Geom("box", (L / 2 - 0.55, 0.0, (1.15 + H - 0.2) / 2), (0.56, W / 2 + 0.01, (H - 0.2 - 1.15) / 2), glass, finish="glass"))
         lamp_z, wheel_x = 0.8, L / 2 - 0.9
         wheels = [(wheel_x, s) for s in (-1, 1)] + [(-wheel_x, s) for s in (-1, 1)]
     elif cls == "truck":
         r = 0.5
         cab_l, cab_h = 2.3, min(H, float(rng.uniform(2.6, 3.1)))
-        g.append(Geom("box", (L / 2 - cab_l / 2, 0.0, (0.45 + cab_h) / 2), (cab_l / 2, W / 2 - 0.05, (cab_h - 0.45) / 2), colour))
-        g.append(Geom("box", (L / 2 - 0.3, 0.0, (1.5 + cab_h - 0.2) / 2), (0.31, W / 2 - 0.04, (cab_h - 0.2 - 1.5) / 2), glass))
+        g.append(Geom("box", (L / 2 - cab_l / 2, 0.0, (0.45 + cab_h) / 2), (cab_l / 2, W / 2 - 0.05, (cab_h - 0.45) / 2), colour, finish="paint"))
+        g.append(Geom("box", (L / 2 - 0.3, 0.0, (1.5 + cab_h - 0.2) / 2), (0.31, W / 2 - 0.04, (cab_h - 0.2 - 1.5) / 2), glass, finish="glass"))
         cargo = (*rng.uniform(0.4, 0.95, 3).tolist(), 1.0)
-        g.append(Geom("box", (-cab_l / 2 - 0.1, 0.0, (0.9 + H) / 2), ((L - cab_l - 0.2) / 2, W / 2, (H - 0.9) / 2), cargo))
+        g.append(Geom("box", (-cab_l / 2 - 0.1, 0.0, (0.9 + H) / 2), ((L - cab_l - 0.2) / 2, W / 2, (H - 0.9) / 2), cargo, finish="paint"))
         g.append(Geom("box", (0.0, 0.0, 0.7), (L / 2 - 0.1, W / 2 - 0.3, 0.2), dark))
         lamp_z, wheel_x = 0.8, L / 2 - 1.2
         wheels = [(wheel_x, s) for s in (-1, 1)] + [(-wheel_x + dx, s) for s in (-1, 1) for dx in (0.0, 1.1)]
     elif cls == "bus":
         r = 0.5
-        g.append(Geom("box", (0.0, 0.0, (0.35 + H) / 2), (L / 2, W / 2, (H - 0.35) / 2), colour))
-        g.append(Geom("box", (0.0, 0.0, (1.25 + H - 0.35) / 2), (L / 2 - 0.3, W / 2 + 0.01, (H - 0.35 - 1.25) / 2), glass))
-        g.append(Geom("box", (L / 2 - 0.05, 0.0, (1.0 + H - 0.3) / 2), (0.06, W / 2 - 0.1, (H - 0.3 - 1.0) / 2), glass))
+        g.append(Geom("box", (0.0, 0.0, (0.35 + H) / 2), (L / 2, W / 2, (H - 0.35) / 2), colour, finish="paint"))
+        g.append(Geom("box", (0.0, 0.0, (1.25 + H - 0.35) / 2), (L / 2 - 0.3, W / 2 + 0.01, (H - 0.35 - 1.25) / 2), glass, finish="glass"))
+        g.append(Geom("box", (L / 2 - 0.05, 0.0, (1.0 + H - 0.3) / 2), (0.06, W / 2 - 0.1, (H - 0.3 - 1.0) / 2), glass, finish="glass"))
         lamp_z, wheel_x = 0.7, L / 2 - 2.4
         wheels = [(wheel_x, s) for s in (-1, 1)] + [(-wheel_x + 1.0, s) for s in (-1, 1)]
     else:

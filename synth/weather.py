@@ -57,7 +57,7 @@ def sample_environment(rng: np.random.Generator, time_of_day: str | None = None,
         elevation, sun, amb = rng.uniform(2, 8), np.array([0.8, 0.5, 0.4]) * rng.uniform(0.2, 0.35), 0.2
         sky_top, sky_hor = np.array([0.12, 0.14, 0.3]), np.array([0.6, 0.4, 0.35])
     else:  # night: a dim moon, lamps do most of the work
-        elevation, sun, amb = rng.uniform(20, 60), np.array([0.5, 0.55, 0.7]) * rng.uniform(0.05, 0.1), 0.07
+        elevation, sun, amb = rng.uniform(20, 60), np.array([0.5, 0.55, 0.7]) * rng.uniform(0.08, 0.15), 0.1
         sky_top, sky_hor = np.array([0.01, 0.01, 0.03]), np.array([0.05, 0.05, 0.08])
     ambient = np.array([1.0, 1.0, 1.0]) * amb * rng.uniform(0.85, 1.15)
     cast = shadows and tod in ("day", "low_sun")
@@ -86,7 +86,7 @@ def sample_environment(rng: np.random.Generator, time_of_day: str | None = None,
         shadows=bool(cast), sky_top=tuple(sky_top.tolist()), sky_horizon=tuple(sky_hor.tolist()),
         fog_start_m=fog_start, fog_end_m=fog_end, fog_rgb=tuple(np.asarray(fog_rgb).tolist()),
         lamps_on=night, lamp_rgb=tuple((np.array([1.0, 0.85, 0.6]) * rng.uniform(0.7, 1.0)).tolist()),
-        rain_streaks=int(rng.integers(150, 600)) if wx == "rain" else 0,
+        rain_streaks=int(rng.integers(80, 350)) if wx == "rain" else 0,
         noise_sigma=float(rng.uniform(0.5, 3.0) * (2.5 if night else 1.0)),
         blur_sigma=float(rng.uniform(0.0, 0.9)),
         jpeg_quality=int(rng.integers(35, 85)) if rng.random() < 0.4 else 0,
@@ -116,11 +116,14 @@ def apply_post_effects(rgb: np.ndarray, env: Environment, rng: np.random.Generat
             cv2.line(layer, (int(x), int(y)), (int(x + slant * length_px), int(y + length_px)), 1.0, 1)
         layer = cv2.GaussianBlur(layer, (3, 3), 0.7)
         img = img * 0.92 + layer[..., None] * 55.0
-    img *= env.exposure
+    # Automatic gain, as CCTV cameras do at dusk and night: dark frames are brightened and
+    # their noise amplified with them.
+    gain = float(np.clip(75.0 / max(float(img.mean()), 1.0), 1.0, 4.0)) * env.exposure
+    img *= gain
     if env.blur_sigma > 0.3:
         img = cv2.GaussianBlur(img, (0, 0), env.blur_sigma)
     if env.noise_sigma > 0:
-        img += rng.normal(0.0, env.noise_sigma, img.shape).astype(np.float32)
+        img += rng.normal(0.0, env.noise_sigma * max(1.0, gain), img.shape).astype(np.float32)
     out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
     if env.jpeg_quality:
         ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, env.jpeg_quality])

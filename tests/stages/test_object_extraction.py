@@ -104,8 +104,11 @@ def test_background_none_uses_the_height_map_alone():
     extractor = ObjectExtractor(TrackingConfig(background="none"), GroundConfig())
     image, heights, ground = _scene(0, [(100, 150, 40, 120, 1.75)])
     packet = extractor.process(_packet(0, image, heights, ground))
-    assert sorted(round(d.height_m) for d in packet.detections) == [2, 8]   # person and building
+    # The static 8 m building is above ground but taller than any mover: scenery, not an object.
+    assert [round(d.height_m, 1) for d in packet.detections] == [1.8]
     assert packet.foreground is None
+    with_building = ObjectExtractor(TrackingConfig(background="none", max_object_height_m=10), GroundConfig())
+    assert len(with_building.process(_packet(0, image, heights, ground)).detections) == 2
 
 
 @pytest.mark.parametrize("method", ["mog2", "cnt", "knn", "gsoc"])
@@ -137,3 +140,41 @@ def test_costs_a_few_milliseconds_at_640x360():
         elapsed.append(time.perf_counter() - start)
     # Median over frames; generous for a shared CI core (measured ~2-3 ms here).
     assert np.median(elapsed) * 1000 < 15
+
+
+def test_merged_blob_splits_at_separate_height_peaks():
+    from stages.object_extraction import split_by_height_peaks
+
+    blob = np.zeros((60, 50), bool)
+    blob[:, 5:45] = True                                   # one foreground blob, two people wide
+    heights = np.zeros((60, 50), np.float32)
+    heights[:, 5:24] = np.linspace(1.6, 0.05, 60)[:, None]
+    heights[:, 26:45] = np.linspace(1.9, 0.05, 60)[:, None]
+    heights[40:, 24:26] = 0.3                              # legs touching low down
+    pieces = split_by_height_peaks(blob, heights, min_area=40)
+    assert len(pieces) == 2
+    tops = sorted(round(float(heights[p].max()), 1) for p in pieces)
+    assert tops == [1.6, 1.9]
+    single = np.zeros((60, 20), np.float32) + np.linspace(1.7, 0.05, 60)[:, None]
+    assert len(split_by_height_peaks(np.ones((60, 20), bool), single, min_area=40)) == 1
+
+
+def test_height_consistency_residual_raises_the_noise():
+    """Points matched onto the person whose height changed between frames: trust this frame less."""
+    from pipeline.packets import FeatureMatches
+
+    noises = {}
+    for wobble in (0.0, 0.3):
+        extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+        for index, people in enumerate(_walk(12)):
+            image, heights, ground = _scene(index, people)
+            if people and index % 2:
+                heights[heights > 0.1] += wobble           # the height map wobbles every other frame
+            packet = _packet(index, image, heights, ground)
+            if people:
+                x, y, w, h, _ = people[0]
+                curr = np.array([[x + 5 + i, y + 10 + 8 * i] for i in range(10)], np.float32)
+                packet.matches = FeatureMatches(curr - np.float32([6, 0]), curr, np.ones(10, bool))
+            packet = extractor.process(packet)
+        noises[wobble] = packet.detections[0].height_noise_m
+    assert noises[0.3] > noises[0.0] + 0.1

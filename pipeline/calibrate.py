@@ -1,0 +1,120 @@
+"""`heightpipe calibrate SOURCE`: self-calibrate a camera from the people walking in its video.
+
+Runs the early stages (capture, undistortion, background subtraction, tracking; not the
+network, whose metres need the camera height this command is looking for), collects the head
+and foot points of upright tracked people and fits horizon and camera height with a population
+height prior (stages/self_calibration.py). Prints a ``[camera]`` snippet for config.toml on
+stdout and the fit's report on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("source", help="video file, image folder or glob, stream URL, or webcam index")
+    parser.add_argument("--calibration", metavar="JSON",
+                        help="intrinsic calibration (K, distortion); a pose in it is only compared with")
+    parser.add_argument("--fov", type=float, metavar="DEG",
+                        help="horizontal field of view, when there is no calibration (default: camera.fov_deg)")
+    parser.add_argument("--prior-mean", type=float, default=1.70, metavar="M",
+                        help="mean height of the people in view (default 1.70)")
+    parser.add_argument("--prior-std", type=float, default=0.09, metavar="M",
+                        help="spread of people's heights (default 0.09)")
+    parser.add_argument("--min-track-frames", type=int, default=5, metavar="N",
+                        help="use people seen upright in at least N frames (default 5)")
+    parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N processed frames")
+    parser.add_argument("--stride", type=int, metavar="N", help="process every Nth frame")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def main(args: argparse.Namespace, config) -> int:
+    from tqdm import tqdm
+
+    from pipeline.errors import ConfigError
+    from pipeline.packets import FramePacket
+    from stages.calibration import camera_for_run, has_distortion
+    from stages.capture import open_source
+    from stages.object_extraction import ObjectExtractor
+    from stages.self_calibration import HeadFootCollector, HeightPrior, self_calibrate
+    from stages.tracking import TrackingStage
+    from stages.undistortion import Undistorter
+
+    if args.calibration is not None:
+        config.camera.calibration = args.calibration
+    if args.fov is not None:
+        config.camera.fov_deg = args.fov
+    if args.max_frames is not None:
+        config.capture.max_frames = args.max_frames
+    if args.stride is not None:
+        config.capture.stride = args.stride
+    if config.capture.stride < 1:
+        raise ConfigError("capture.stride must be at least 1")
+    if not (0.5 < args.prior_mean < 2.5 and 0.0 < args.prior_std < 0.5):
+        raise ConfigError("--prior-mean must be in metres (0.5-2.5) and --prior-std in (0, 0.5)")
+
+    source = open_source(args.source, config.capture)
+    width, height = source.size
+    # Only the intrinsics are used: the pose is what this command estimates.
+    intrinsics_config = dataclasses.replace(config.camera, height_m=0.0, pitch_deg=0.0, roll_deg=0.0,
+                                            self_calibrated=False)
+    try:
+        camera = camera_for_run(intrinsics_config, width, height)
+    except ConfigError:
+        source.close()
+        raise
+    stages = []
+    if has_distortion(camera):
+        stages.append(Undistorter(camera))
+    stages += [ObjectExtractor(config.tracking, config.ground), TrackingStage(config.tracking)]
+    collector = HeadFootCollector(width, height)
+    progress = tqdm(total=source.stats.expected, unit="frame", disable=args.no_progress or not config.output.progress,
+                    desc="collecting people", dynamic_ncols=True, file=sys.stderr)
+    try:
+        for frame in source.frames():
+            packet = FramePacket(frame=frame, camera=camera)
+            for stage in stages:
+                packet = stage.process(packet)
+            collector.add(packet.tracks)
+            progress.update(1)
+    except KeyboardInterrupt:
+        print("heightpipe: interrupted, calibrating from the frames so far", file=sys.stderr)
+    finally:
+        progress.close()
+        source.close()
+
+    foot, top, track_ids = collector.arrays(args.min_track_frames)
+    prior = HeightPrior(mean_m=args.prior_mean, std_m=args.prior_std)
+    result = self_calibrate(foot, top, track_ids, width, height, camera.K,
+                            focal_known=bool(config.camera.calibration), prior=prior,
+                            settings=None)
+    print(result.config_snippet(calibration=config.camera.calibration))
+    _report(result, config.camera.calibration, width, height)
+    return 0
+
+
+def _report(result, calibration: str, width: int, height: int) -> None:
+    from stages.calibration import angles_from_rotation, load_calibration, rescale_camera
+
+    a, b, c = result.horizon()
+    lines = [
+        f"heightpipe: self-calibrated from {result.n_tracks} upright tracked objects taken as people "
+        f"({result.n_observations} head/foot points)",
+        f"  camera height {result.height_m:.2f} +- {result.height_std_m:.2f} m, pitch "
+        f"{result.pitch_deg:.1f} +- {result.pitch_std_deg:.1f} deg, roll {result.roll_deg:.1f} +- "
+        f"{result.roll_std_deg:.1f} deg, focal {result.K[0, 0]:.0f} px ({result.focal_source})",
+        f"  horizon: {a:.4f} u + {b:.4f} v + {c:.1f} = 0 (v = {-(c + a * width / 2) / b:.0f} at the image centre)",
+        f"  people's heights with this camera: spread {result.person_height_spread_m:.2f} m "
+        f"(prior {result.prior.mean_m:.2f} +- {result.prior.std_m:.2f} m)",
+    ]
+    if calibration:
+        reference = rescale_camera(load_calibration(calibration), width, height)
+        if reference.R is not None:
+            pitch, roll, _ = angles_from_rotation(reference.R)
+            lines.append(f"  the calibration file's own pose: height {reference.height_m:.2f} m, "
+                         f"pitch {pitch:.1f} deg, roll {roll:.1f} deg")
+    lines.append("  heights from this camera are flagged as self-calibrated (self_calibrated = true)")
+    print("\n".join(lines), file=sys.stderr)

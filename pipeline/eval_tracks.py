@@ -1,0 +1,686 @@
+"""``heightpipe eval-tracks DATA``: tracking quality and per-object height error on generator data.
+
+For every sequence of a synthetic dataset (``synth.dataset``) the tracking pipeline runs as in
+``heightpipe run`` (feature matching, object extraction, geometry, tracking) with heights from
+the shipped network or, with ``--heights oracle``, from the ground-truth height map. Reported:
+
+* HOTA, MOTA, IDF1 and ID switches over all sequences (class-agnostic boxes, IoU 0.5 for
+  CLEAR / Identity). The metrics are computed by trackeval when the optional ``eval`` extra is
+  installed and otherwise by the built-in implementation below, which follows trackeval's code.
+* Height error per ground-truth object: the final height of the track that followed it versus
+  the truth, next to the single-frame estimates (detections) versus the truth; per class and
+  per camera height.
+* Occlusions: objects hidden for a while and seen again, whether their track kept its id and
+  its height.
+
+Ground-truth boxes that are mostly hidden (``--min-visibility``) are "don't care": they are
+neither required nor penalised, and a track box on one is dropped (as MOTChallenge does with
+occluded and distractor boxes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import time
+from collections import defaultdict
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.config import Config
+from pipeline.errors import HeightpipeError
+
+# Generator classes in the tracker's coarse terms.
+COARSE_CLASS = {"pedestrian": "person", "cyclist": "cyclist", "car": "vehicle", "van": "vehicle",
+                "truck": "vehicle", "bus": "vehicle"}
+MATCH_IOU = 0.5
+HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", help="synthetic dataset folder (manifest.json), from `heightpipe synth`")
+    parser.add_argument("--split", choices=("test", "train", "all"), default="test",
+                        help="which sequences (default: the held-out test split)")
+    parser.add_argument("--sequences", nargs="+", metavar="NAME", help="only these sequences")
+    parser.add_argument("--heights", choices=("model", "oracle"), default="model",
+                        help="height maps from the network (default) or the ground truth (oracle)")
+    parser.add_argument("--no-geometry", action="store_true",
+                        help="do not fuse the calibrated-camera geometry height")
+    parser.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
+    parser.add_argument("--min-visibility", type=float, default=0.3,
+                        help="ground-truth boxes less visible than this are don't-care (default 0.3)")
+    parser.add_argument("--min-box-px", type=float, default=20.0,
+                        help="ground-truth boxes shorter than this (pixels) are don't-care (default 20)")
+    parser.add_argument("--min-frames", type=int, default=10,
+                        help="objects matched in fewer frames are left out of the height errors")
+    parser.add_argument("--json", metavar="FILE", help="write the full report as JSON")
+    parser.add_argument("--plot", metavar="PNG", help="picture of per-track height series (first sequence)")
+    parser.add_argument("--record", metavar="RRD", help="rerun recording of the first sequence")
+
+
+def main(args: argparse.Namespace, config: Config) -> int:
+    from synth.dataset import list_sequences
+
+    root = Path(args.data)
+    if not (root / "manifest.json").is_file():
+        raise HeightpipeError(f"{root} is not a synthetic dataset (no manifest.json)")
+    sequences = list_sequences(root, split=None if args.split == "all" else args.split)
+    if args.sequences:
+        wanted = set(args.sequences)
+        sequences = [s for s in sequences if s.name in wanted]
+        missing = wanted - {s.name for s in sequences}
+        if missing:
+            raise HeightpipeError(f"no such sequence in {root} ({args.split} split): {', '.join(sorted(missing))}")
+    if not sequences:
+        raise HeightpipeError(f"no {args.split} sequences in {root}")
+
+    runs = []
+    start = time.perf_counter()
+    for index, sequence in enumerate(sequences):
+        record_path = Path(args.record) if (args.record and index == 0) else None
+        run = run_sequence(sequence, config, heights=args.heights, geometry=not args.no_geometry,
+                           max_frames=args.max_frames, record=record_path)
+        runs.append(run)
+        print(f"  {sequence.name}: {len(run.frames)} frames, {run.fps:.1f} fps", file=sys.stderr)
+        if index == 0 and args.plot:
+            plot_height_series(run, Path(args.plot), args.min_visibility)
+    report = evaluate(runs, min_visibility=args.min_visibility, min_frames=args.min_frames,
+                      min_box_px=args.min_box_px)
+    report["heights"] = args.heights
+    report["geometry"] = not args.no_geometry
+    report["wall_s"] = round(time.perf_counter() - start, 1)
+    print(format_report(report))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(report, indent=2, default=_json_default))
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+# Running the pipeline over one sequence
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class TruthBox:
+    object_id: int
+    cls: str
+    """Coarse class: person, cyclist, vehicle."""
+    box: tuple[float, float, float, float]
+    visibility: float
+    height_m: float
+
+
+@dataclass
+class OutputBox:
+    track_id: int
+    box: tuple[float, float, float, float]
+    height_m: float
+    height_std_m: float
+    cls: str
+    height_source: str
+    updated: bool
+
+
+@dataclass
+class DetectionBox:
+    box: tuple[float, float, float, float]
+    height_m: float
+
+
+@dataclass
+class FrameRecord:
+    truth: list[TruthBox]
+    tracks: list[OutputBox]
+    """Confirmed tracks, updated or predicted."""
+    detections: list[DetectionBox]
+
+
+@dataclass
+class SequenceRun:
+    name: str
+    camera_height_m: float
+    weather: str
+    time_of_day: str
+    fps: float = 0.0
+    frames: list[FrameRecord] = field(default_factory=list)
+
+
+class OracleHeights:
+    """Stand-in for ground segmentation + height inference: the generator's true maps."""
+
+    def __init__(self, sequence):
+        self.sequence = sequence
+
+    def process(self, packet):
+        truth = self.sequence.frame(packet.frame.index)
+        packet.height_map = np.nan_to_num(truth.height_m, nan=0.0).astype(np.float32)
+        packet.ground_mask = truth.ground.astype(bool)
+        return packet
+
+
+def camera_info(sequence):
+    from pipeline.packets import CameraInfo
+
+    camera = sequence.meta.camera
+    return CameraInfo(width=camera.width, height=camera.height, K=np.asarray(camera.K, float),
+                      R=np.asarray(camera.R, float), t=np.asarray(camera.t, float).reshape(3),
+                      height_m=float(camera.height_m), source="calibration")
+
+
+def build_eval_stages(sequence, config: Config, heights: str, geometry: bool) -> list[tuple[str, object]]:
+    from stages.feature_matching import FeatureMatcher
+    from stages.object_extraction import ObjectExtractor
+    from stages.tracking import TrackingStage
+
+    if heights == "oracle":
+        stages: list[tuple[str, object]] = [("heights", OracleHeights(sequence))]
+    else:
+        from stages.ground_segmentation import GroundSegmenter
+        from stages.height_inference import HeightEstimator
+        from stages.heightnet_model import HeightNetModel
+
+        model = HeightNetModel(config.height.model, config.height.threads)
+        stages = [("ground", GroundSegmenter(config.ground, model)), ("height", HeightEstimator(model))]
+    stages += [("matching", FeatureMatcher(config.matching, config.ground)),
+               ("objects", ObjectExtractor(config.tracking, config.ground))]
+    if geometry:
+        from stages.geometry import GeometryMeasurer
+
+        stages.append(("geometry", GeometryMeasurer(config.camera)))
+    stages.append(("tracking", TrackingStage(config.tracking)))
+    return stages
+
+
+def run_sequence(sequence, config: Config, heights: str = "model", geometry: bool = True,
+                 max_frames: int = 0, record: Path | None = None) -> SequenceRun:
+    """Runs the tracking pipeline over one generator sequence and keeps what evaluation needs."""
+    import cv2
+
+    from pipeline.packets import Frame, FramePacket
+
+    meta = sequence.meta
+    run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
+    camera = camera_info(sequence)
+    stages = build_eval_stages(sequence, config, heights, geometry)
+    sink = _open_recording(record, config, sequence.name) if record else None
+    count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
+    start = time.perf_counter()
+    try:
+        for index in range(count):
+            truth_frame = sequence.frame(index)
+            image = cv2.cvtColor(truth_frame.rgb, cv2.COLOR_RGB2BGR)
+            packet = FramePacket(frame=Frame(index, truth_frame.time_s, image), camera=camera)
+            for _, stage in stages:
+                packet = stage.process(packet)
+            if sink is not None:
+                sink.write(packet)
+            run.frames.append(FrameRecord(
+                truth=[TruthBox(o.id, COARSE_CLASS.get(o.cls, "other"), tuple(map(float, o.box)),
+                                float(o.visible_fraction), float(o.height_m))
+                       for o in sequence.objects(index)],
+                tracks=[OutputBox(t.track_id, tuple(map(float, t.box)), t.height_m, t.height_std_m,
+                                  t.cls, t.height_source, t.updated)
+                        for t in packet.tracks if t.confirmed],
+                detections=[DetectionBox(tuple(map(float, d.box)), d.height_m) for d in packet.detections],
+            ))
+    finally:
+        if sink is not None:
+            sink.close()
+        for _, stage in stages:
+            close = getattr(stage, "close", None)
+            if close is not None:
+                close()
+    run.fps = count / max(time.perf_counter() - start, 1e-9)
+    return run
+
+
+def _open_recording(path: Path, config: Config, name: str):
+    from stages.rerun_sink import RerunSink
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return RerunSink(path, "save", config.output, name)
+
+
+# --------------------------------------------------------------------------------------------
+# MOT metrics: HOTA, CLEAR (MOTA, IDSW), Identity (IDF1)
+# --------------------------------------------------------------------------------------------
+
+def iou_matrix(boxes_a, boxes_b) -> np.ndarray:
+    from stages.association import iou_matrix as _iou
+
+    return _iou(boxes_a, boxes_b)
+
+
+def cared_for(truth: TruthBox, min_visibility: float, min_box_px: float) -> bool:
+    """Whether a ground-truth box is required (else don't-care): visible enough and big enough."""
+    return truth.visibility >= min_visibility and truth.box[3] >= min_box_px
+
+
+def mot_data(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -> dict:
+    """One sequence in trackeval's per-sequence format, with don't-care boxes removed."""
+    from scipy.optimize import linear_sum_assignment
+
+    gt_ids, tracker_ids, similarity = [], [], []
+    for frame in run.frames:
+        cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
+        ignored = [t for t in frame.truth if not cared_for(t, min_visibility, min_box_px)]
+        outputs = [o for o in frame.tracks if o.updated]
+        if ignored and outputs:
+            # A track box that best explains a don't-care box is neither TP nor FP.
+            everything = cared + ignored
+            iou = iou_matrix([t.box for t in everything], [o.box for o in outputs])
+            rows, cols = linear_sum_assignment(-iou)
+            drop = {c for r, c in zip(rows, cols) if r >= len(cared) and iou[r, c] >= MATCH_IOU}
+            outputs = [o for i, o in enumerate(outputs) if i not in drop]
+        gt_ids.append([t.object_id for t in cared])
+        tracker_ids.append([o.track_id for o in outputs])
+        similarity.append(iou_matrix([t.box for t in cared], [o.box for o in outputs]))
+    gt_map = {g: i for i, g in enumerate(sorted({g for ids in gt_ids for g in ids}))}
+    tr_map = {g: i for i, g in enumerate(sorted({g for ids in tracker_ids for g in ids}))}
+    return {
+        "num_timesteps": len(run.frames),
+        "num_gt_ids": len(gt_map), "num_tracker_ids": len(tr_map),
+        "num_gt_dets": sum(len(ids) for ids in gt_ids),
+        "num_tracker_dets": sum(len(ids) for ids in tracker_ids),
+        "gt_ids": [np.array([gt_map[g] for g in ids], dtype=int) for ids in gt_ids],
+        "tracker_ids": [np.array([tr_map[g] for g in ids], dtype=int) for ids in tracker_ids],
+        "similarity_scores": similarity,
+    }
+
+
+def _trackeval_metrics():
+    """trackeval's metric objects, or None when the optional extra is not installed."""
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):   # it prints about optional datasets
+            from trackeval.metrics import CLEAR, HOTA, Identity
+            return {"HOTA": HOTA(), "CLEAR": CLEAR({"THRESHOLD": MATCH_IOU, "PRINT_CONFIG": False}),
+                    "Identity": Identity({"THRESHOLD": MATCH_IOU, "PRINT_CONFIG": False})}
+    except ImportError:
+        return None
+
+
+def mot_metrics(datas: list[dict], use_trackeval: bool | None = None) -> dict:
+    """Combined HOTA / CLEAR / Identity over sequences (trackeval if available and allowed)."""
+    metrics = _trackeval_metrics() if use_trackeval in (None, True) else None
+    if use_trackeval and metrics is None:
+        raise HeightpipeError("trackeval is not installed (pip install --no-deps trackeval==1.3.0)")
+    if metrics is not None:
+        combined = {}
+        for name, metric in metrics.items():
+            per_sequence = {str(i): metric.eval_sequence(d) for i, d in enumerate(datas)}
+            combined[name] = metric.combine_sequences(per_sequence)
+        hota, clear, identity = combined["HOTA"], combined["CLEAR"], combined["Identity"]
+        engine = "trackeval"
+    else:
+        hota = _combine_hota([_hota(d) for d in datas])
+        clear = _combine_clear([_clear(d) for d in datas])
+        identity = _combine_identity([_identity(d) for d in datas])
+        engine = "built-in"
+    return {
+        "engine": engine,
+        "HOTA": float(np.mean(hota["HOTA"])), "DetA": float(np.mean(hota["DetA"])),
+        "AssA": float(np.mean(hota["AssA"])),
+        "MOTA": float(clear["MOTA"]), "IDSW": int(clear["IDSW"]), "IDF1": float(identity["IDF1"]),
+        "gt_dets": int(clear["CLR_TP"] + clear["CLR_FN"]), "false_positives": int(clear["CLR_FP"]),
+        "misses": int(clear["CLR_FN"]),
+    }
+
+
+def _hota(data: dict) -> dict:
+    """HOTA for one sequence, as trackeval.metrics.HOTA computes it (Luiten et al., IJCV 2021)."""
+    n_alpha = len(HOTA_ALPHAS)
+    res = {k: np.zeros(n_alpha) for k in ("TP", "FN", "FP", "AssA")}
+    if data["num_tracker_dets"] == 0 or data["num_gt_dets"] == 0:
+        res["FN"][:] = data["num_gt_dets"]
+        res["FP"][:] = data["num_tracker_dets"]
+        return res
+    from scipy.optimize import linear_sum_assignment
+
+    potential = np.zeros((data["num_gt_ids"], data["num_tracker_ids"]))
+    gt_count = np.zeros((data["num_gt_ids"], 1))
+    tr_count = np.zeros((1, data["num_tracker_ids"]))
+    for gt, tr, sim in zip(data["gt_ids"], data["tracker_ids"], data["similarity_scores"]):
+        denominator = sim.sum(0)[None, :] + sim.sum(1)[:, None] - sim
+        sim_iou = np.where(denominator > np.finfo(float).eps, sim / np.maximum(denominator, 1e-12), 0.0)
+        potential[gt[:, None], tr[None, :]] += sim_iou
+        gt_count[gt] += 1
+        tr_count[0, tr] += 1
+    alignment = potential / (gt_count + tr_count - potential)
+    matches = [np.zeros_like(potential) for _ in HOTA_ALPHAS]
+    for gt, tr, sim in zip(data["gt_ids"], data["tracker_ids"], data["similarity_scores"]):
+        if len(gt) == 0 or len(tr) == 0:
+            res["FP"] += len(tr)
+            res["FN"] += len(gt)
+            continue
+        rows, cols = linear_sum_assignment(-(alignment[gt[:, None], tr[None, :]] * sim))
+        for a, alpha in enumerate(HOTA_ALPHAS):
+            ok = sim[rows, cols] >= alpha - np.finfo(float).eps
+            res["TP"][a] += ok.sum()
+            res["FN"][a] += len(gt) - ok.sum()
+            res["FP"][a] += len(tr) - ok.sum()
+            matches[a][gt[rows[ok]], tr[cols[ok]]] += 1
+    for a in range(n_alpha):
+        ass = matches[a] / np.maximum(1, gt_count + tr_count - matches[a])
+        res["AssA"][a] = np.sum(matches[a] * ass) / max(1.0, res["TP"][a])
+    return res
+
+
+def _combine_hota(parts: list[dict]) -> dict:
+    tp = sum(p["TP"] for p in parts)
+    fn = sum(p["FN"] for p in parts)
+    fp = sum(p["FP"] for p in parts)
+    ass_a = sum(p["AssA"] * p["TP"] for p in parts) / np.maximum(1e-10, tp)
+    det_a = tp / np.maximum(1, tp + fn + fp)
+    return {"HOTA": np.sqrt(det_a * ass_a), "DetA": det_a, "AssA": ass_a}
+
+
+def _clear(data: dict) -> dict:
+    """CLEAR MOT counts for one sequence, as trackeval.metrics.CLEAR counts them."""
+    from scipy.optimize import linear_sum_assignment
+
+    res = {"TP": 0, "FN": 0, "FP": 0, "IDSW": 0}
+    last_tracker = np.full(data["num_gt_ids"], np.nan)       # for ID switches (any gap)
+    previous_frame = np.full(data["num_gt_ids"], np.nan)     # for continuing matches
+    for gt, tr, sim in zip(data["gt_ids"], data["tracker_ids"], data["similarity_scores"]):
+        if len(gt) == 0 or len(tr) == 0:
+            res["FP"] += len(tr)
+            res["FN"] += len(gt)
+            if len(gt) and not len(tr):
+                previous_frame[:] = np.nan
+            continue
+        score = 1000.0 * (tr[None, :] == previous_frame[gt[:, None]]) + sim
+        score[sim < MATCH_IOU - np.finfo(float).eps] = 0
+        rows, cols = linear_sum_assignment(-score)
+        ok = score[rows, cols] > np.finfo(float).eps
+        matched_gt, matched_tr = gt[rows[ok]], tr[cols[ok]]
+        before = last_tracker[matched_gt]
+        res["IDSW"] += int(np.sum(~np.isnan(before) & (matched_tr != before)))
+        last_tracker[matched_gt] = matched_tr
+        previous_frame[:] = np.nan
+        previous_frame[matched_gt] = matched_tr
+        res["TP"] += len(matched_gt)
+        res["FN"] += len(gt) - len(matched_gt)
+        res["FP"] += len(tr) - len(matched_gt)
+    return res
+
+
+def _combine_clear(parts: list[dict]) -> dict:
+    total = {k: sum(p[k] for p in parts) for k in ("TP", "FN", "FP", "IDSW")}
+    mota = (total["TP"] - total["FP"] - total["IDSW"]) / max(1, total["TP"] + total["FN"])
+    return {"MOTA": mota, "IDSW": total["IDSW"], "CLR_TP": total["TP"], "CLR_FN": total["FN"],
+            "CLR_FP": total["FP"]}
+
+
+def _identity(data: dict) -> dict:
+    """IDTP of the best one-to-one id mapping (maximising IDTP minimises IDFN + IDFP)."""
+    from scipy.optimize import linear_sum_assignment
+
+    potential = np.zeros((data["num_gt_ids"], data["num_tracker_ids"]))
+    for gt, tr, sim in zip(data["gt_ids"], data["tracker_ids"], data["similarity_scores"]):
+        g, t = np.nonzero(sim >= MATCH_IOU)
+        potential[gt[g], tr[t]] += 1
+    idtp = 0.0
+    if potential.size:
+        rows, cols = linear_sum_assignment(-potential)
+        idtp = float(potential[rows, cols].sum())
+    return {"IDTP": idtp, "gt": data["num_gt_dets"], "tr": data["num_tracker_dets"]}
+
+
+def _combine_identity(parts: list[dict]) -> dict:
+    idtp = sum(p["IDTP"] for p in parts)
+    total = sum(p["gt"] + p["tr"] for p in parts)
+    return {"IDF1": 2 * idtp / max(1, total)}
+
+
+# --------------------------------------------------------------------------------------------
+# Height errors per ground-truth object
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class ObjectHeight:
+    sequence: str
+    object_id: int
+    cls: str
+    camera_height_m: float
+    weather: str
+    true_height_m: float
+    matched_frames: int
+    tracked_height_m: float | None
+    """Final height of the track that followed the object (None: never tracked)."""
+    tracked_std_m: float | None
+    track_ids: list[int]
+    single_frame_errors_m: list[float]
+
+
+def object_heights(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -> list[ObjectHeight]:
+    """Per ground-truth object: its track's final height, and every single-frame estimate."""
+    from scipy.optimize import linear_sum_assignment
+
+    truth_heights: dict[int, list[float]] = defaultdict(list)
+    classes: dict[int, str] = {}
+    track_votes: dict[int, dict[int, int]] = defaultdict(lambda: defaultdict(int))
+    last_height: dict[tuple[int, int], tuple[float, float]] = {}
+    single: dict[int, list[float]] = defaultdict(list)
+    for frame in run.frames:
+        for t in frame.truth:
+            truth_heights[t.object_id].append(t.height_m)
+            classes[t.object_id] = t.cls
+        cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
+        if not cared:
+            continue
+        outputs = [o for o in frame.tracks if o.updated]
+        if outputs:
+            iou = iou_matrix([t.box for t in cared], [o.box for o in outputs])
+            for r, c in zip(*linear_sum_assignment(-iou)):
+                if iou[r, c] >= MATCH_IOU:
+                    key = (cared[r].object_id, outputs[c].track_id)
+                    track_votes[key[0]][key[1]] += 1
+                    last_height[key] = (outputs[c].height_m, outputs[c].height_std_m)
+        if frame.detections:
+            iou = iou_matrix([t.box for t in cared], [d.box for d in frame.detections])
+            for r, c in zip(*linear_sum_assignment(-iou)):
+                if iou[r, c] >= MATCH_IOU and np.isfinite(frame.detections[c].height_m):
+                    single[cared[r].object_id].append(frame.detections[c].height_m)
+    results = []
+    for object_id, heights in truth_heights.items():
+        # Stature: the gait's hip drop only lowers the head, so the truth is the largest value.
+        true_height = float(np.max(heights))
+        votes = track_votes.get(object_id, {})
+        main_track = max(votes, key=votes.get) if votes else None
+        tracked = last_height.get((object_id, main_track)) if main_track is not None else None
+        results.append(ObjectHeight(
+            sequence=run.name, object_id=object_id, cls=classes[object_id],
+            camera_height_m=run.camera_height_m, weather=run.weather, true_height_m=true_height,
+            matched_frames=int(sum(votes.values())),
+            tracked_height_m=None if tracked is None else float(tracked[0]),
+            tracked_std_m=None if tracked is None else float(tracked[1]),
+            track_ids=sorted(votes),
+            single_frame_errors_m=[float(h - true_height) for h in single.get(object_id, [])],
+        ))
+    return results
+
+
+def height_summary(objects: list[ObjectHeight], min_frames: int) -> dict:
+    """Median absolute errors, tracked vs single-frame, for the objects tracked long enough."""
+    usable = [o for o in objects if o.tracked_height_m is not None and np.isfinite(o.tracked_height_m)
+              and o.matched_frames >= min_frames]
+    tracked = [abs(o.tracked_height_m - o.true_height_m) for o in usable]
+    single = [abs(e) for o in usable for e in o.single_frame_errors_m]
+    return {
+        "objects": len(usable),
+        "tracked_median_error_m": float(np.median(tracked)) if tracked else None,
+        "tracked_p90_error_m": float(np.percentile(tracked, 90)) if tracked else None,
+        "tracked_median_bias_m": (float(np.median([o.tracked_height_m - o.true_height_m for o in usable]))
+                                  if usable else None),
+        "single_frame_median_error_m": float(np.median(single)) if single else None,
+        "single_frames": len(single),
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Occlusions: hidden for a while, seen again
+# --------------------------------------------------------------------------------------------
+
+def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames: int) -> list[dict]:
+    """Objects visible, then hidden (visibility < 0.1) for a while, then visible again."""
+    from scipy.optimize import linear_sum_assignment
+
+    history: dict[int, list[tuple[int, float, int | None, float | None]]] = defaultdict(list)
+    for index, frame in enumerate(run.frames):
+        outputs = [o for o in frame.tracks if o.updated]
+        matched: dict[int, OutputBox] = {}
+        if frame.truth and outputs:
+            iou = iou_matrix([t.box for t in frame.truth], [o.box for o in outputs])
+            for r, c in zip(*linear_sum_assignment(-iou)):
+                if iou[r, c] >= MATCH_IOU:
+                    matched[frame.truth[r].object_id] = outputs[c]
+        for t in frame.truth:
+            out = matched.get(t.object_id)
+            history[t.object_id].append((index, t.visibility, out.track_id if out else None,
+                                         out.height_m if out else None))
+    events = []
+    for object_id, rows in history.items():
+        hidden_run, before = 0, None
+        for index, visibility, track_id, height in rows:
+            if visibility < 0.1:
+                hidden_run += 1
+                continue
+            if visibility >= min_visibility and track_id is not None:
+                if hidden_run >= min_hidden_frames and before is not None:
+                    events.append({"sequence": run.name, "object_id": object_id,
+                                   "hidden_frames": hidden_run, "id_before": before[0],
+                                   "id_after": track_id, "kept_id": before[0] == track_id,
+                                   "height_before_m": before[1], "height_after_m": height})
+                before = (track_id, height)
+            hidden_run = 0 if visibility >= 0.1 else hidden_run
+    return events
+
+
+# --------------------------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------------------------
+
+def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: int = 10,
+             use_trackeval: bool | None = None, min_box_px: float = 0.0) -> dict:
+    datas = [mot_data(run, min_visibility, min_box_px) for run in runs]
+    objects = [o for run in runs for o in object_heights(run, min_visibility, min_box_px)]
+    events = [e for run in runs for e in occlusion_events(run, min_visibility, min_hidden_frames=5)]
+    by_class = {cls: height_summary([o for o in objects if o.cls == cls], min_frames)
+                for cls in sorted({o.cls for o in objects})}
+    by_camera = {f"{h:.1f}": height_summary([o for o in objects if round(o.camera_height_m, 1) == h], min_frames)
+                 for h in sorted({round(o.camera_height_m, 1) for o in objects})}
+    by_weather = {w: height_summary([o for o in objects if o.weather == w], min_frames)
+                  for w in sorted({o.weather for o in objects})}
+    return {
+        "min_visibility": min_visibility, "min_box_px": min_box_px, "min_frames": min_frames,
+        "sequences": [r.name for r in runs],
+        "frames": sum(len(r.frames) for r in runs),
+        "mot": mot_metrics(datas, use_trackeval),
+        "height_all": height_summary(objects, min_frames),
+        "height_by_class": by_class,
+        "height_by_camera_height": by_camera,
+        "height_by_weather": by_weather,
+        "occlusions": events,
+        "objects": [asdict(o) for o in objects],
+    }
+
+
+def _cm(value: float | None) -> str:
+    return "   -  " if value is None else f"{100 * value:6.1f}"
+
+
+def format_report(report: dict) -> str:
+    mot = report["mot"]
+    lines = [
+        f"eval-tracks: {len(report['sequences'])} sequences, {report['frames']} frames, "
+        f"heights from {report.get('heights', '?')}"
+        f"{' + geometry' if report.get('geometry') else ''}; don't-care: visibility < "
+        f"{report['min_visibility']}, boxes < {report['min_box_px']:g} px",
+        f"  HOTA {mot['HOTA']:.3f}  (DetA {mot['DetA']:.3f}, AssA {mot['AssA']:.3f})  "
+        f"MOTA {mot['MOTA']:.3f}  IDF1 {mot['IDF1']:.3f}  ID switches {mot['IDSW']}  "
+        f"FP {mot['false_positives']}  misses {mot['misses']} / {mot['gt_dets']}  [{mot['engine']}]",
+        "  height error (cm), median over objects      tracked  single-frame  objects",
+    ]
+
+    def row(label: str, summary: dict) -> str:
+        return (f"    {label:<38} {_cm(summary['tracked_median_error_m'])}   "
+                f"{_cm(summary['single_frame_median_error_m'])}      {summary['objects']:4d}")
+
+    lines.append(row("all", report["height_all"]))
+    for cls, summary in report["height_by_class"].items():
+        lines.append(row(f"class {cls}", summary))
+    for height, summary in report["height_by_camera_height"].items():
+        lines.append(row(f"camera at {height} m", summary))
+    for weather, summary in report["height_by_weather"].items():
+        lines.append(row(f"weather {weather}", summary))
+    events = report["occlusions"]
+    if events:
+        kept = sum(e["kept_id"] for e in events)
+        changes = [abs(e["height_after_m"] - e["height_before_m"]) for e in events
+                   if e["kept_id"] and e["height_before_m"] is not None and e["height_after_m"] is not None
+                   and np.isfinite(e["height_before_m"]) and np.isfinite(e["height_after_m"])]
+        lines.append(f"  occlusions (hidden >= 5 frames): {len(events)}, id kept in {kept}; "
+                     f"median height change {_cm(float(np.median(changes)) if changes else None).strip()} cm")
+    return "\n".join(lines)
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+# --------------------------------------------------------------------------------------------
+# Picture of the per-track height series
+# --------------------------------------------------------------------------------------------
+
+def plot_height_series(run: SequenceRun, path: Path, min_visibility: float) -> None:
+    """Each confirmed track's height (line, ±1 std band) over frames, with the truth dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series: dict[int, list[tuple[int, float, float]]] = defaultdict(list)
+    single: dict[int, list[tuple[int, float]]] = defaultdict(list)
+    for index, frame in enumerate(run.frames):
+        for out in frame.tracks:
+            if np.isfinite(out.height_m):
+                series[out.track_id].append((index, out.height_m, out.height_std_m))
+        updated = [o for o in frame.tracks if o.updated]
+        if updated and frame.detections:
+            # The detection a track was updated with is the one its box now overlaps most.
+            iou = iou_matrix([o.box for o in updated], [d.box for d in frame.detections])
+            for row, out in enumerate(updated):
+                best = int(np.argmax(iou[row]))
+                if iou[row, best] > 0.3 and np.isfinite(frame.detections[best].height_m):
+                    single[out.track_id].append((index, frame.detections[best].height_m))
+    truths = {o.object_id: o.true_height_m for o in object_heights(run, min_visibility)}
+    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
+    colours = plt.get_cmap("tab10")
+    for n, (track_id, points) in enumerate(sorted(series.items())):
+        frames, heights, stds = (np.array(v) for v in zip(*points))
+        colour = colours(n % 10)
+        ax.plot(frames, heights, color=colour, label=f"track {track_id}")
+        ax.fill_between(frames, heights - stds, heights + stds, color=colour, alpha=0.2)
+        if single[track_id]:
+            ax.scatter(*zip(*single[track_id]), color=colour, s=6, alpha=0.6)
+    for height in truths.values():
+        ax.axhline(height, color="grey", linestyle="--", linewidth=0.7)
+    ax.set_xlabel("frame")
+    ax.set_ylabel("tracked height (m)")
+    ax.set_title(f"{run.name}: tracked height (line, ±1 std), single-frame (dots), truth (dashed)",
+                 fontsize=9)
+    if series:
+        ax.legend(loc="upper right", fontsize=7, ncol=2)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)

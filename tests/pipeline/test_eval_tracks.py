@@ -1,0 +1,88 @@
+"""eval-tracks metrics on hand-made sequences (no generator needed), and against trackeval."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.eval_tracks import (DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox,
+                                  _trackeval_metrics, evaluate, mot_data, mot_metrics,
+                                  occlusion_events)
+
+
+def _truth(object_id, x, visibility=1.0, height=1.75, cls="person"):
+    return TruthBox(object_id, cls, (x, 50.0, 20.0, 60.0), visibility, height)
+
+
+def _out(track_id, x, height=1.75, updated=True):
+    return OutputBox(track_id, (x, 50.0, 20.0, 60.0), height, 0.02, "person", "network", updated)
+
+
+def _run(frames, name="seq"):
+    return SequenceRun(name, 5.0, "clear", "day", 10.0, frames)
+
+
+def test_perfect_tracking_scores_one():
+    frames = [FrameRecord([_truth(1, 10 + 3 * i), _truth(2, 200 - 3 * i)],
+                          [_out(7, 10 + 3 * i), _out(9, 200 - 3 * i)], []) for i in range(20)]
+    for engine in (False, None):
+        mot = mot_metrics([mot_data(_run(frames), 0.3)], use_trackeval=engine)
+        assert mot["HOTA"] == pytest.approx(1.0) and mot["MOTA"] == pytest.approx(1.0)
+        assert mot["IDF1"] == pytest.approx(1.0) and mot["IDSW"] == 0
+
+
+def test_an_id_switch_is_counted_and_costs_idf1():
+    frames = [FrameRecord([_truth(1, 10 + 3 * i)], [_out(7 if i < 10 else 8, 10 + 3 * i)], [])
+              for i in range(20)]
+    mot = mot_metrics([mot_data(_run(frames), 0.3)], use_trackeval=False)
+    assert mot["IDSW"] == 1
+    assert mot["MOTA"] == pytest.approx(1 - 1 / 20)
+    assert mot["IDF1"] == pytest.approx(2 * 10 / 40)
+
+
+def test_hidden_truth_is_dont_care():
+    """A track box on a hidden object is no false positive; a missed hidden object no miss."""
+    frames = [FrameRecord([_truth(1, 10, visibility=0.05)], [_out(7, 10)], []),
+              FrameRecord([_truth(1, 10, visibility=0.05)], [], [])]
+    data = mot_data(_run(frames), 0.3)
+    assert data["num_gt_dets"] == 0 and data["num_tracker_dets"] == 0
+
+
+def test_builtin_metrics_agree_with_trackeval():
+    if _trackeval_metrics() is None:
+        pytest.skip("trackeval (optional eval extra) not installed")
+    rng = np.random.default_rng(0)
+    runs = []
+    for s in range(3):
+        frames = []
+        for i in range(30):
+            truth = [_truth(k, 30 * k + 2 * i) for k in range(4) if rng.random() > 0.1]
+            outs = [_out(10 * k + (i > 15 and k == 1) + (rng.random() < 0.05),
+                         30 * k + 2 * i + rng.normal(0, 4)) for k in range(4) if rng.random() > 0.15]
+            outs.append(_out(99, 400 + rng.normal(0, 30)))
+            frames.append(FrameRecord(truth, outs, []))
+        runs.append(_run(frames, f"s{s}"))
+    datas = [mot_data(r, 0.3) for r in runs]
+    ours, theirs = mot_metrics(datas, use_trackeval=False), mot_metrics(datas, use_trackeval=True)
+    assert theirs["engine"] == "trackeval"
+    for key in ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW"):
+        assert ours[key] == pytest.approx(theirs[key], abs=1e-9), key
+
+
+def test_height_errors_tracked_vs_single_frame_and_occlusion():
+    rng = np.random.default_rng(1)
+    frames = []
+    for i in range(40):
+        hidden = 15 <= i < 25
+        truth = [_truth(1, 10 + 2 * i, visibility=0.0 if hidden else 1.0, height=1.80)]
+        outs = [] if hidden else [_out(5, 10 + 2 * i, height=1.80 + 0.3 / (i + 1))]
+        dets = [] if hidden else [DetectionBox((10 + 2 * i, 50.0, 20.0, 60.0), 1.80 + rng.normal(0, 0.1))]
+        frames.append(FrameRecord(truth, outs, dets))
+    report = evaluate([_run(frames)], use_trackeval=False)
+    summary = report["height_by_class"]["person"]
+    assert summary["objects"] == 1
+    assert summary["tracked_median_error_m"] == pytest.approx(0.3 / 40)
+    assert 0.03 < summary["single_frame_median_error_m"] < 0.15
+    assert report["occlusions"] == occlusion_events(_run(frames), 0.3, 5)
+    (event,) = report["occlusions"]
+    assert event["kept_id"] and event["hidden_frames"] == 10

@@ -1,0 +1,128 @@
+"""`heightpipe replay`: an MCAP becomes the same rerun recording that the live sink writes."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from pipeline import cli
+from pipeline.config import OutputConfig
+from pipeline.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
+from stages.mcap_sink import McapSink
+from stages.rerun_sink import RerunSink
+from stages.sink_common import FrameEncoder
+
+W, H = 64, 48
+
+
+def make_packet(index: int) -> FramePacket:
+    """Track 1 confirmed from frame 4, track 3 never; frame 6 has no height map or matches."""
+    rng = np.random.default_rng(index)
+    height = np.zeros((H, W), np.float32)
+    height[10:30, 20:30] = 1.72
+    points = rng.uniform(0, [W, H], (30, 2)).astype(np.float32)
+    tracks = [Track(1, (20, 10, 10, 20), "person", 1.72, 0.04, confirmed=index >= 4),
+              Track(2, (5, 5, 8, 8), "vehicle", 1.2, 0.3, confirmed=True),
+              Track(3, (40, 30, 5, 5), "other", 0.6, 0.5, confirmed=False)]
+    return FramePacket(
+        frame=Frame(index, index / 10, rng.integers(0, 255, (H, W, 3), dtype=np.uint8)),
+        camera=CameraInfo(W, H, K=np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])),
+        ground_mask=height < 0.1, height_map=None if index == 6 else height,
+        matches=None if index == 6 else FeatureMatches(points, points + 1, np.arange(30) < 10),
+        tracks=tracks)
+
+
+def rrd_rows(path: Path) -> dict[str, list[tuple[int, dict]]]:
+    """Temporal rows per entity, (frame, {component: value}), sorted by frame."""
+    rows: dict[str, list[tuple[int, dict]]] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        columns = {name: batch.column(name).to_pylist() for name in batch.schema.names if ":" in name}
+        for i, frame in enumerate(batch.column("frame").to_pylist()):
+            rows[chunk.entity_path].append((frame, {name: values[i] for name, values in columns.items()}))
+    return {entity: sorted(items, key=lambda item: item[0]) for entity, items in rows.items()}
+
+
+def comparable(rows: dict[str, list[tuple[int, dict]]]) -> dict[str, list]:
+    """What must match between live and replayed recordings (arrow order may differ)."""
+    summary = {}
+    for entity, items in rows.items():
+        if entity.startswith("/__"):
+            continue
+        summary[entity] = [
+            (frame, sorted(components), sorted(map(str, row.get("Boxes2D:labels") or [])),
+             row.get("Scalars:scalars"), sorted(map(tuple, row.get("Arrows2D:origins") or [])),
+             row.get("DepthImage:buffer"), row.get("SegmentationImage:buffer"),
+             row.get("Pinhole:image_from_camera"))
+            for frame, row in items for components in [row.keys()]]
+    return summary
+
+
+def test_replay_draws_what_the_live_sink_draws(tmp_path, capsys):
+    indices = [0, 2, 4, 6, 8, 10]
+    config = OutputConfig()
+    encoder = FrameEncoder.from_config(config)
+    live = RerunSink(tmp_path / "run.rrd", "save", config, "run", encoder=encoder)
+    recording = McapSink(tmp_path / "run.mcap", config, encoder=encoder)
+    for index in indices:
+        packet = make_packet(index)
+        live.write(packet)
+        recording.write(packet)
+    live.close()
+    recording.close()
+
+    replayed = tmp_path / "replayed.rrd"
+    assert cli.main(["replay", str(tmp_path / "run.mcap"), "--save", str(replayed)]) == 0
+    assert "replayed 6 frames" in capsys.readouterr().err
+    verify = subprocess.run([shutil.which("rerun") or "rerun", "rrd", "verify", str(replayed)],
+                            capture_output=True, text=True, timeout=60)
+    assert verify.returncode == 0, verify.stderr
+    assert len(RrdReader(replayed).blueprints()) == 1
+
+    live_rows, replay_rows = rrd_rows(tmp_path / "run.rrd"), rrd_rows(replayed)
+    assert comparable(replay_rows) == comparable(live_rows)
+    # Spot checks of the shared content itself, beyond "same as live".
+    assert [frame for frame, _ in replay_rows["/camera/image"]] == indices
+    assert [frame for frame, _ in replay_rows["/tracks/1/height"]] == [4, 6, 8, 10]
+    labels = dict(replay_rows["/camera/tracks"])[8]["Boxes2D:labels"]
+    assert sorted(labels) == ["#1 1.72\u00b10.04 m", "#2 1.20\u00b10.30 m"]
+    live_jpeg = dict(live_rows["/camera/image"])[4]["EncodedImage:blob"]
+    assert dict(replay_rows["/camera/image"])[4]["EncodedImage:blob"] == live_jpeg
+
+
+def test_unfinished_recording_replays_its_complete_chunks(tmp_path, capsys):
+    path = tmp_path / "run.mcap"
+    sink = McapSink(path, OutputConfig(flush_interval_s=1.0))
+    for index in range(35):  # 3.5 s at 10 fps: chunks closed at 1, 2 and 3 s
+        sink.write(make_packet(index))
+    sink.close()
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) * 2 // 3])
+
+    assert cli.main(["replay", str(path), "--save", str(tmp_path / "cut.rrd")]) == 0
+    err = capsys.readouterr().err
+    assert "warning" in err and "ends early" in err
+    frames = [frame for frame, _ in rrd_rows(tmp_path / "cut.rrd")["/camera/image"]]
+    assert frames == list(range(len(frames))) and 10 <= len(frames) < 35
+
+
+@pytest.mark.parametrize("content, message", [
+    (None, "MCAP file not found"),
+    (b"this is not an mcap file at all", "not an MCAP file"),
+    (b"\x89MCAP0\r\n" + b"\x00" * 5, "cannot read MCAP"),
+])
+def test_missing_or_corrupt_mcap_is_a_one_line_error(tmp_path, capsys, content, message):
+    path = tmp_path / "bad.mcap"
+    if content is not None:
+        path.write_bytes(content)
+    assert cli.main(["replay", str(path), "--save", str(tmp_path / "out.rrd")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("heightpipe: error: ") and message in err and "\n" not in err

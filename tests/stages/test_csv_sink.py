@@ -1,0 +1,43 @@
+"""TrackCsvSink: one row per confirmed track per frame, on disk as soon as the frame is written."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from pipeline.errors import HeightpipeError
+from pipeline.packets import CameraInfo, Frame, FramePacket, Track
+from stages.csv_sink import TrackCsvSink
+
+HEADER = "frame,time_s,track_id,class,x,y,w,h,score,height_m,height_std_m"
+
+
+def make_packet(index: int, tracks: list[Track]) -> FramePacket:
+    return FramePacket(frame=Frame(index, index / 25, np.zeros((48, 64, 3), np.uint8)),
+                       camera=CameraInfo(64, 48), tracks=tracks)
+
+
+def test_rows_are_confirmed_tracks_and_reach_disk_every_frame(tmp_path):
+    path = tmp_path / "run.tracks.csv"
+    sink = TrackCsvSink(path)
+    sink.write(make_packet(0, [Track(7, (10.25, 20.0, 5.0, 12.5), "person", 1.7234, 0.0412,
+                                     score=0.9, confirmed=False)]))
+    sink.write(make_packet(3, [Track(7, (11.0, 20.5, 5.0, 12.5), "person", 1.7234, 0.0412,
+                                     score=0.9, confirmed=True),
+                               Track(9, (40.0, 30.0, 8.0, 8.0), "vehicle", 1.41, 0.2, confirmed=True)]))
+    # Before close(): what a crash would leave behind.
+    lines = path.read_text().splitlines()
+    assert lines[0] == HEADER
+    assert lines[1:] == ["3,0.1200,7,person,11.0,20.5,5.0,12.5,0.900,1.723,0.041",
+                         "3,0.1200,9,vehicle,40.0,30.0,8.0,8.0,1.000,1.410,0.200"]
+    sink.write(make_packet(4, []))
+    sink.close()
+    rows = list(csv.DictReader(path.open()))
+    assert len(rows) == 2 and float(rows[1]["height_m"]) == pytest.approx(1.41)
+
+
+def test_unwritable_path_is_a_clear_error(tmp_path):
+    with pytest.raises(HeightpipeError, match="cannot write"):
+        TrackCsvSink(tmp_path / "missing-folder" / "run.tracks.csv")

@@ -1,0 +1,243 @@
+"""GeometryMeasurer and Undistorter: metric heights from foot and top points, honest noise."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.config import CameraConfig
+from pipeline.errors import SourceError
+from pipeline.packets import CameraInfo, Detection, Frame, FramePacket
+from stages.calibration import (camera_for_run, camera_from_pose, heights_from_foot_top, intrinsics_from_fov,
+                                load_calibration, project_points, undistort_pixels)
+from stages.geometry import GeometryMeasurer
+from stages.undistortion import Undistorter
+
+SHARED_REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real"
+OXFORD = SHARED_REAL / "oxford_towncentre"
+OXFORD_CALIBRATION = OXFORD / "calib_opencv.json"
+needs_oxford = pytest.mark.skipif(not OXFORD_CALIBRATION.is_file(), reason="shared/real/oxford_towncentre missing")
+
+
+def packet_with(camera: CameraInfo, detections: list[Detection], image: np.ndarray | None = None) -> FramePacket:
+    if image is None:
+        image = np.zeros((camera.height, camera.width, 3), np.uint8)
+    return FramePacket(frame=Frame(index=0, time_s=0.0, image=image), camera=camera, detections=detections)
+
+
+def detection(foot, top, cls="person") -> Detection:
+    return Detection(box=(min(foot[0], top[0]) - 5, top[1], 10, foot[1] - top[1]), height_m=1.0, cls=cls,
+                     foot_xy=(float(foot[0]), float(foot[1])), top_xy=(float(top[0]), float(top[1])))
+
+
+def oxford_detections() -> tuple[list[Detection], list[dict]]:
+    with open(OXFORD / "gt_with_geometry.csv") as f:
+        rows = list(csv.DictReader(f))
+    return [detection((float(r["foot_u"]), float(r["foot_v"])), (float(r["headtop_u"]), float(r["headtop_v"])))
+            for r in rows], rows
+
+
+# --------------------------------------------------------------------------- Oxford (real)
+
+@needs_oxford
+def test_oxford_annotations_give_the_annotated_heights_and_ground_points():
+    camera = load_calibration(OXFORD_CALIBRATION)           # raw frames: points undistorted in the stage
+    detections, rows = oxford_detections()
+    GeometryMeasurer(CameraConfig()).process(packet_with(camera, detections))
+    measured = [(d, r) for d, r in zip(detections, rows) if d.geometry_height_m is not None]
+    # Rows whose foot lies on or below the frame's bottom edge have no measurement.
+    assert all(float(r["foot_v"]) < 1078 for _, r in measured)
+    assert len(measured) >= 0.95 * sum(r["foot_inside_image"] == "1" for r in rows)
+    errors = np.array([d.geometry_height_m - float(r["height_headtop_m"]) for d, r in measured])
+    assert np.abs(errors).max() < 1e-3
+    ground = np.array([d.ground_xy_m for d, _ in measured])
+    expected = np.array([[float(r["ground_x_m"]), float(r["ground_y_m"])] for _, r in measured])
+    assert np.abs(ground - expected).max() < 1e-3
+    noise = np.array([d.geometry_noise_m for d, _ in measured])
+    assert np.all((noise > 0.01) & (noise < 0.2))
+
+
+@needs_oxford
+def test_undistorted_frames_and_undistorted_points_agree():
+    """Undistorter first (frames remapped, camera without dist) or points undistorted in geometry."""
+    raw_camera = camera_for_run(CameraConfig(calibration=str(OXFORD_CALIBRATION)), 1920, 1080)
+    undistorter = Undistorter(raw_camera)
+    assert undistorter.camera.dist is None and np.array_equal(undistorter.camera.K, raw_camera.K)
+    raw, _ = oxford_detections()
+    raw = raw[:100]
+    undistorted = [dataclasses.replace(d) for d in raw]
+    foot = undistort_pixels(raw_camera, [d.foot_xy for d in raw])
+    top = undistort_pixels(raw_camera, [d.top_xy for d in raw])
+    for d, f, t in zip(undistorted, foot, top):
+        d.foot_xy, d.top_xy = tuple(f), tuple(t)
+    measurer = GeometryMeasurer(CameraConfig())
+    measurer.process(packet_with(raw_camera, raw))
+    measurer.process(packet_with(undistorter.camera, undistorted))
+    a = np.array([d.geometry_height_m or np.nan for d in raw])
+    b = np.array([d.geometry_height_m or np.nan for d in undistorted])
+    # The border test is made on each frame's own pixels, so a foot on the bottom edge may differ.
+    both = ~np.isnan(a) & ~np.isnan(b)
+    assert both.sum() >= 0.9 * (~np.isnan(a)).sum() and np.abs(a[both] - b[both]).max() < 1e-6
+
+
+@needs_oxford
+def test_undistorter_moves_distorted_dots_to_their_pinhole_positions():
+    import cv2
+
+    camera = camera_for_run(CameraConfig(calibration=str(OXFORD_CALIBRATION)), 1920, 1080)
+    # Dots on the ground, drawn where the real (distorting) lens puts them.
+    xs, ys = np.meshgrid(np.arange(-2.0, 14.0, 3.0), np.arange(2.0, 16.0, 3.0))
+    world = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    pinhole = project_points(camera, world)
+    rvec = cv2.Rodrigues(camera.R)[0]
+    distorted = cv2.projectPoints(world, rvec, camera.t, camera.K, camera.dist)[0].reshape(-1, 2)
+    inside = np.all((distorted > 20) & (distorted < [1900, 1060]), axis=1) & \
+        np.all((pinhole > 20) & (pinhole < [1900, 1060]), axis=1)
+    assert inside.sum() >= 10
+    image = np.zeros((1080, 1920, 3), np.uint8)
+    for u, v in distorted[inside]:
+        cv2.circle(image, (int(round(u * 16)), int(round(v * 16))), 6 * 16, (255, 255, 255), -1, cv2.LINE_AA, 4)
+    undistorter = Undistorter(camera)
+    packet = undistorter.process(packet_with(camera, [], image))
+    assert packet.camera is undistorter.camera and packet.camera.dist is None
+    gray = packet.frame.image[:, :, 0].astype(float)
+    for u, v in pinhole[inside]:
+        x0, y0 = int(u) - 15, int(v) - 15
+        patch = gray[y0:y0 + 31, x0:x0 + 31]
+        py, px = np.mgrid[0:31, 0:31]
+        centroid = np.array([(patch * px).sum(), (patch * py).sum()]) / patch.sum() + [x0, y0]
+        assert np.hypot(*(centroid - [u, v])) < 0.5
+    with pytest.raises(SourceError, match="1920x1080"):
+        undistorter.process(packet_with(dataclasses.replace(camera, width=640, height=480), []))
+
+
+# --------------------------------------------------------------------------- synthetic cameras
+
+def test_uncalibrated_camera_gets_no_geometry():
+    for camera in (camera_for_run(CameraConfig(), 640, 480), camera_for_run(CameraConfig(height_m=5.0), 640, 480)):
+        d = detection((320, 400), (320, 300))
+        GeometryMeasurer(CameraConfig()).process(packet_with(camera, [d]))
+        assert d.geometry_height_m is None and d.geometry_noise_m is None and d.ground_xy_m is None
+
+
+def test_points_cut_by_the_border_are_not_measured():
+    camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 5.0, 30.0)
+    foot_cut = detection((320, 479.5), (320, 380))
+    top_cut = detection((320, 300), (320, 0.5))
+    whole = detection((320, 300), (320, 200))
+    GeometryMeasurer(CameraConfig()).process(packet_with(camera, [foot_cut, top_cut, whole]))
+    assert foot_cut.ground_xy_m is None and foot_cut.geometry_height_m is None
+    assert top_cut.ground_xy_m is not None and top_cut.geometry_height_m is None
+    assert whole.geometry_height_m is not None
+
+
+def _person_at(camera, x, y, height_m):
+    foot, top = project_points(camera, [[x, y, 0.0], [x, y, height_m]])
+    return detection(foot, top)
+
+
+def test_pixel_noise_is_propagated_honestly():
+    """The stage's pixel-noise std agrees with a Monte Carlo of +-point_noise_px on both points."""
+    camera = camera_from_pose(1280, 720, intrinsics_from_fov(1280, 720, 60), 6.0, 25.0, 1.0)
+    people = [_person_at(camera, x, y, 1.75) for x, y in [(-3, 8), (0, 15), (4, 22), (1, 30)]]
+    measurer = GeometryMeasurer(CameraConfig(point_noise_px=2.0))
+    foot = np.array([d.foot_xy for d in people])
+    top = np.array([d.top_xy for d in people])
+    stated = measurer._pixel_noise(camera, foot, top)
+    rng = np.random.default_rng(0)
+    samples = [heights_from_foot_top(camera, foot + rng.normal(0, 2, foot.shape), top + rng.normal(0, 2, top.shape))[0]
+               for _ in range(3000)]
+    assert stated == pytest.approx(np.std(samples, axis=0), rel=0.1)
+    assert np.all(np.diff(stated) > 0)                        # farther people: fewer pixels, more noise
+    measurer.process(packet_with(camera, people))
+    assert [d.geometry_height_m for d in people] == pytest.approx([1.75] * 4, abs=1e-9)
+    assert all(d.geometry_noise_m >= s for d, s in zip(people, stated))
+
+
+def test_self_calibrated_camera_height_uncertainty_widens_the_noise():
+    config = CameraConfig(height_m=6.0, pitch_deg=25.0, self_calibrated=True)
+    camera = camera_for_run(config, 1280, 720)
+    exact = _person_at(camera, 0, 12, 1.75)
+    uncertain = dataclasses.replace(exact)
+    GeometryMeasurer(config).process(packet_with(camera, [exact]))
+    GeometryMeasurer(dataclasses.replace(config, height_std_m=0.6)).process(packet_with(camera, [uncertain]))
+    assert uncertain.geometry_height_m == exact.geometry_height_m
+    # 10 % of the camera height is 10 % of the object's height, added in quadrature.
+    assert uncertain.geometry_noise_m == pytest.approx(np.hypot(exact.geometry_noise_m, 0.175), rel=1e-6)
+
+
+def test_long_objects_get_more_noise_than_people():
+    camera = camera_from_pose(1280, 720, intrinsics_from_fov(1280, 720, 60), 6.0, 25.0)
+    person = _person_at(camera, 0, 15, 1.5)
+    car = dataclasses.replace(person, cls="vehicle")
+    GeometryMeasurer(CameraConfig()).process(packet_with(camera, [person, car]))
+    assert car.geometry_height_m == person.geometry_height_m
+    assert car.geometry_noise_m > 3 * person.geometry_noise_m
+
+
+# --------------------------------------------------------------------------- generator frames
+
+@pytest.fixture(scope="module")
+def synth_sequence(tmp_path_factory):
+    """Three rendered frames of a street with a known camera (MuJoCo, ~5 s)."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    sequence_module = pytest.importorskip("synth.sequence")
+    writer = pytest.importorskip("synth.writer")
+    dataset = pytest.importorskip("synth.dataset")
+    options = sequence_module.SequenceOptions(frames=3, sizes=((640, 480),), shadows=False, post_effects=False,
+                                              pedestrians=(10, 12), vehicles=(2, 3))
+    plan = sequence_module.plan_sequence(3, 0, options)
+    root = tmp_path_factory.mktemp("synth")
+    try:
+        writer.write_sequence(plan, root)
+    except Exception as exc:  # no EGL/OSMesa on this machine
+        pytest.skip(f"cannot render synth frames: {exc}")
+    return dataset.SynthSequence(root / plan.name)
+
+
+def _mask_detections(sequence, index):
+    """Detections the way the object extractor makes them: box edges, centre column."""
+    frame = sequence.frame(index)
+    camera = sequence.meta.camera
+    pairs = []
+    for truth in sequence.objects(index):
+        mask = frame.instance == truth.id
+        if truth.visible_fraction < 0.95 or mask.sum() < 30:
+            continue
+        ys, xs = np.nonzero(mask)
+        x0, x1, y0, y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
+        if y0 <= 2 or y1 >= camera.height - 2 or x0 <= 2 or x1 >= camera.width - 2:
+            continue
+        cls = "person" if truth.cls == "pedestrian" else ("cyclist" if truth.cls == "cyclist" else "vehicle")
+        pairs.append((Detection(box=(x0, y0, x1 - x0, y1 - y0), height_m=float("nan"), cls=cls,
+                                foot_xy=((x0 + x1) / 2, float(y1)), top_xy=((x0 + x1) / 2, float(y0))), truth))
+    return pairs
+
+
+def test_generator_frames_heights_and_ground_positions(synth_sequence):
+    c = synth_sequence.meta.camera
+    camera = CameraInfo(width=c.width, height=c.height, K=c.K, R=c.R, t=c.t, height_m=c.height_m,
+                        source="calibration")
+    measurer = GeometryMeasurer(CameraConfig())
+    people, others = [], []
+    for index in range(len(synth_sequence)):
+        pairs = _mask_detections(synth_sequence, index)
+        measurer.process(packet_with(camera, [d for d, _ in pairs]))
+        for d, truth in pairs:
+            assert d.geometry_height_m is not None
+            (people if d.cls == "person" else others).append((d, truth))
+    assert len(people) >= 10
+    errors = np.array([d.geometry_height_m - t.height_m for d, t in people])
+    noise = np.array([d.geometry_noise_m for d, _ in people])
+    assert np.abs(errors).max() < 0.15 and abs(np.mean(errors)) < 0.06
+    assert np.mean(np.abs(errors) < 2 * noise) > 0.9              # the stated noise covers the error
+    # The box's bottom is the nearer foot, not the body's centre: decimetres at 640x480.
+    ground = np.array([np.hypot(*np.subtract(d.ground_xy_m, t.ground_xy_m)) for d, t in people])
+    assert np.median(ground) < 0.4 and ground.max() < 0.8
+    for d, truth in others:                                       # vehicles: biased high, but within noise
+        assert abs(d.geometry_height_m - truth.height_m) < 3 * d.geometry_noise_m

@@ -1,0 +1,165 @@
+"""RerunSink writes a .rrd that rerun itself reads back: frames, overlays, tracks, blueprint."""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from pipeline.config import OutputConfig
+from pipeline.errors import ConfigError, HeightpipeError
+from pipeline.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
+from stages.rerun_sink import RerunSink
+from stages.sink_common import FrameEncoder
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+W, H = 64, 48
+
+
+def make_packet(index: int, complete: bool = True) -> FramePacket:
+    """A 64x48 frame with a 1.72 m object; track 1 confirmed from frame 4, track 3 never."""
+    rng = np.random.default_rng(index)
+    height = np.zeros((H, W), np.float32)
+    height[10:30, 20:30] = 1.72
+    points = rng.uniform(0, [W, H], (30, 2)).astype(np.float32)
+    tracks = [Track(1, (20, 10, 10, 20), "person", 1.72, 0.04, confirmed=index >= 4),
+              Track(2, (5, 5, 8, 8), "vehicle", 1.2, 0.3, confirmed=True),
+              Track(3, (40, 30, 5, 5), "other", 0.6, 0.5, confirmed=False)]
+    return FramePacket(
+        frame=Frame(index, index / 10, rng.integers(0, 255, (H, W, 3), dtype=np.uint8)),
+        camera=CameraInfo(W, H, K=np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])),
+        ground_mask=height < 0.1 if complete else None,
+        height_map=height if complete else None,
+        matches=FeatureMatches(points, points + 1, np.arange(30) < 10) if complete else None,
+        tracks=tracks)
+
+
+def rrd_rows(path: Path) -> dict[str, list[tuple[int, dict]]]:
+    """Temporal rows per entity, (frame, {component: value}), sorted by frame."""
+    rows: dict[str, list[tuple[int, dict]]] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        columns = {name: batch.column(name).to_pylist() for name in batch.schema.names
+                   if ":" in name or name == "time"}
+        for i, frame in enumerate(batch.column("frame").to_pylist()):
+            rows[chunk.entity_path].append((frame, {name: values[i] for name, values in columns.items()}))
+    return {entity: sorted(items, key=lambda item: item[0]) for entity, items in rows.items()}
+
+
+def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
+    path = tmp_path / "run.rrd"
+    sink = RerunSink(path, "save", OutputConfig(height_map_scale=2), "test-run")
+    indices = [0, 2, 4, 6, 8]  # a --stride 2 run: source frame indices
+    for index in indices:
+        sink.write(make_packet(index, complete=index != 4))
+    sink.close()
+    sink.close()  # idempotent: the runner's finally may follow an explicit close
+
+    verify = subprocess.run([shutil.which("rerun") or "rerun", "rrd", "verify", str(path)],
+                            capture_output=True, text=True, timeout=60)
+    assert verify.returncode == 0, verify.stderr
+    reader = RrdReader(path)
+    assert len(reader.recordings()) == 1
+    assert len(reader.blueprints()) == 1, "the layout must be embedded in the .rrd"
+
+    rows = rrd_rows(path)
+    images = rows["/camera/image"]
+    assert [frame for frame, _ in images] == indices
+    assert [row["time"].total_seconds() for _, row in images] == pytest.approx([i / 10 for i in indices])
+    jpeg = bytes(images[0][1]["EncodedImage:blob"][0])
+    assert cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR).shape == (H, W, 3)
+
+    labels = {frame: row["Boxes2D:labels"] for frame, row in rows["/camera/tracks"]}
+    assert labels[0] == ["#2 1.20\u00b10.30 m"]
+    assert sorted(labels[6]) == ["#1 1.72\u00b10.04 m", "#2 1.20\u00b10.30 m"]
+    assert not any("#3" in label for frame_labels in labels.values() for label in frame_labels)
+    height_series = rows["/tracks/1/height"]
+    assert [frame for frame, _ in height_series] == [4, 6, 8]
+    assert all(row["Scalars:scalars"] == pytest.approx([1.72]) for _, row in height_series)
+    assert "/tracks/3/height" not in rows, "tentative tracks are not logged"
+
+    # Height map: uint16 mm at half size; the frame without one clears the stale map.
+    depth = [(frame, row) for frame, row in rows["/height"] if "DepthImage:buffer" in row]
+    assert [frame for frame, _ in depth] == [0, 2, 6, 8]
+    image_format = depth[0][1]["DepthImage:format"][0]
+    assert (image_format["width"], image_format["height"]) == (W // 2, H // 2)
+    millimetres = np.frombuffer(bytes(depth[0][1]["DepthImage:buffer"][0]), np.uint16)
+    assert millimetres.max() == 1720 and depth[0][1]["DepthImage:meter"] == [1000.0]
+    cleared = [frame for frame, row in rows["/height"] if "Clear:is_recursive" in row]
+    assert cleared == [4]
+    assert len([1 for _, row in rows["/camera/ground"] if "SegmentationImage:buffer" in row]) == 4
+    arrows = [row for _, row in rows["/camera/matches"] if "Arrows2D:vectors" in row]
+    assert len(arrows) == 4 and len(arrows[0]["Arrows2D:vectors"]) == 30
+    assert "Pinhole:image_from_camera" in rows["/camera"][0][1]
+
+
+def test_frame_encoder_encodes_once_and_converts_heights_to_mm():
+    encoder = FrameEncoder(jpeg_quality=90, height_map_scale=2)
+    packet = make_packet(0)
+    gradient = np.linspace(0, 255, W, dtype=np.uint8)
+    packet.frame.image = np.dstack([np.tile(gradient, (H, 1))] * 3)
+    first = encoder.jpeg(packet)
+    assert encoder.jpeg(packet) is first, "a second sink must reuse the encoded frame"
+    decoded = cv2.imdecode(np.frombuffer(first, np.uint8), cv2.IMREAD_COLOR)
+    assert np.abs(decoded.astype(int) - packet.frame.image).mean() < 3
+    assert encoder.jpeg(make_packet(1)) != first, "a new frame is encoded anew"
+
+    packet.height_map = np.full((4, 6), 1.7, np.float32)
+    packet.height_map[0, 0:2] = np.nan
+    packet.height_map[1, 0:2] = -0.5
+    packet.height_map[2, 4:6], packet.height_map[3, 4:6] = 80.0, 80.0
+    millimetres = encoder.height_mm(packet)
+    assert millimetres.dtype == np.uint16 and millimetres.shape == (2, 3)
+    assert millimetres[0, 0] == 0, "NaN and below-ground heights become 0"
+    assert millimetres[0, 1] == 1700 and millimetres[1, 2] == 65535
+    assert encoder.height_mm(packet) is millimetres
+
+
+def test_bad_mode_and_config_are_config_errors(tmp_path):
+    with pytest.raises(ConfigError, match="output.rerun"):
+        RerunSink(tmp_path / "x.rrd", "bogus", OutputConfig(), "x")
+    with pytest.raises(ConfigError, match="jpeg_quality"):
+        RerunSink(tmp_path / "x.rrd", "save", OutputConfig(jpeg_quality=0), "x")
+
+
+def test_spawn_without_display_is_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(HeightpipeError, match="needs a display"):
+        RerunSink(tmp_path / "x.rrd", "spawn", OutputConfig(), "x")
+
+
+def _port_free(port: int) -> bool:
+    with socket.socket() as probe:
+        return probe.connect_ex(("127.0.0.1", port)) != 0
+
+
+@pytest.mark.skipif(not (_port_free(9876) and _port_free(9090)), reason="rerun ports in use")
+def test_serve_mode_streams_and_still_writes_the_file(tmp_path):
+    # A subprocess: the web viewer server lives until its process exits.
+    script = (
+        "import sys; sys.path.insert(0, sys.argv[1]); sys.path.insert(0, sys.argv[2])\n"
+        "from pathlib import Path\n"
+        "from test_rerun_sink import make_packet\n"
+        "from pipeline.config import OutputConfig\n"
+        "from stages.rerun_sink import RerunSink\n"
+        "sink = RerunSink(Path(sys.argv[3]), 'serve', OutputConfig(), 'served')\n"
+        "for i in range(3): sink.write(make_packet(i))\n"
+        "sink.close()\n")
+    path = tmp_path / "served.rrd"
+    result = subprocess.run([sys.executable, "-c", script, str(REPO_ROOT), str(Path(__file__).parent),
+                             str(path)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "web viewer at http://127.0.0.1:9090/?url=rerun%2Bhttp://127.0.0.1:9876/proxy" in result.stderr
+    assert [frame for frame, _ in rrd_rows(path)["/camera/image"]] == [0, 1, 2]
