@@ -90,58 +90,18 @@ def _one_line(exc: BaseException) -> str:
     return text if isinstance(exc, HeightpipeError) else f"{type(exc).__name__}: {text}"
 
 
-class _FrameCounter:
-    """Stands in for run_pipeline's tqdm bar inside a worker and reports through ``report``."""
+def _throttled(report: Callable[[int, int | None, float], None] | None):
+    """run_pipeline's on_frame callback, reporting (frames, total, fps) at most every STATUS_INTERVAL_S."""
+    if report is None:
+        return None
+    last = [0.0]
 
-    def __init__(self, report: Callable[[int, int | None, float], None], total: int | None):
-        self.report = report
-        self.total = total
-        self.frames = 0
-        self.start = time.perf_counter()
-        self.last_report = 0.0
+    def on_frame(frames: int, total: int | None, elapsed_s: float) -> None:
+        if elapsed_s - last[0] >= STATUS_INTERVAL_S:
+            last[0] = elapsed_s
+            report(frames, total, frames / max(elapsed_s, 1e-9))
 
-    def update(self, n: int = 1) -> None:
-        self.frames += n
-        now = time.perf_counter()
-        if now - self.last_report >= STATUS_INTERVAL_S:
-            self.last_report = now
-            self.report(self.frames, self.total, self.frames / max(now - self.start, 1e-9))
-
-    def set_postfix(self, *args, **kwargs) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-@contextmanager
-def _frame_progress(report: Callable[[int, int | None, float], None] | None) -> Iterator[None]:
-    """Route run_pipeline's per-frame progress to ``report`` for the duration of one task.
-
-    run_pipeline has no progress callback, so this swaps its private bar factory in the
-    worker process (each worker runs one task at a time). Without it a worker reports only
-    when a file starts and ends.
-    """
-    import pipeline.runner as runner
-
-    original = getattr(runner, "_progress", None)
-    if report is None or original is None:
-        yield
-        return
-
-    def counter(source, config):
-        total = source.stats.expected
-        if total is not None:
-            total = -(-total // max(1, config.capture.stride))
-            if config.capture.max_frames:
-                total = min(total, config.capture.max_frames)
-        return _FrameCounter(report, total)
-
-    runner._progress = counter
-    try:
-        yield
-    finally:
-        runner._progress = original
+    return on_frame
 
 
 def _video_fps(source: str) -> float:
@@ -179,8 +139,7 @@ def process_video(task: VideoTask, report: Callable[[int, int | None, float], No
     config.output.progress = False
     cv2.setNumThreads(task.threads)
     try:
-        with _frame_progress(report):
-            summary = run_pipeline(task.source, config, partial_prefix)
+        summary = run_pipeline(task.source, config, partial_prefix, on_frame=_throttled(report))
     except (KeyboardInterrupt, StopRequested):
         summary = None
         result.status, result.error = INTERRUPTED, "stopped before the video was finished"

@@ -15,7 +15,7 @@ from collections import defaultdict
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 from pipeline.config import Config
 from pipeline.packets import CameraInfo, FramePacket
@@ -141,20 +141,33 @@ def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> lis
     return sinks
 
 
-def _progress(source: FrameSource, config: Config):
-    from tqdm import tqdm
-
+def expected_frames(source: FrameSource, config: Config) -> int | None:
+    """Frames this run will process, where the source says how many it has."""
     total = source.stats.expected
     if total is not None:
         total = -(-total // max(1, config.capture.stride))
         if config.capture.max_frames:
             total = min(total, config.capture.max_frames)
-    return tqdm(total=total, unit="frame", disable=not config.output.progress, dynamic_ncols=True,
-                desc=Path(source.description).name[:30])
+    return total
 
 
-def run_pipeline(source_spec: str, config: Config, prefix: Path) -> RunSummary:
-    """Process one source end to end and return what happened; outputs go to PREFIX.*"""
+def _progress(source: FrameSource, config: Config):
+    from tqdm import tqdm
+
+    return tqdm(total=expected_frames(source, config), unit="frame", disable=not config.output.progress,
+                dynamic_ncols=True, desc=Path(source.description).name[:30])
+
+
+FrameCallback = Callable[[int, "int | None", float], None]
+"""on_frame(frames processed, frames expected or None, elapsed seconds)."""
+
+
+def run_pipeline(source_spec: str, config: Config, prefix: Path,
+                 on_frame: FrameCallback | None = None) -> RunSummary:
+    """Process one source end to end and return what happened; outputs go to PREFIX.*
+
+    ``on_frame`` is called after every frame (batch workers report progress through it).
+    """
     source = open_source(source_spec, config.capture)
     summary = RunSummary(source=source.description, capture=source.stats)
     prefix.parent.mkdir(parents=True, exist_ok=True)
@@ -170,6 +183,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path) -> RunSummary:
         source.close()
         raise
     progress = _progress(source, config)
+    total = expected_frames(source, config)
     start = time.perf_counter()
     try:
         with _sigterm_stops_run():
@@ -191,6 +205,8 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path) -> RunSummary:
                         summary.confirmed_tracks[track.track_id] = (track.cls, track.height_m, track.height_std_m)
                 progress.update(1)
                 progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
+                if on_frame is not None:
+                    on_frame(summary.frames, total, time.perf_counter() - start)
     except KeyboardInterrupt:
         summary.interrupted = "SIGINT"
     except StopRequested as stop:

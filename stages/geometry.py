@@ -10,7 +10,6 @@ the error of assuming the top is above the foot.
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
@@ -47,12 +46,10 @@ class GeometryMeasurer:
         self.camera_height_std_m = config.height_std_m
 
     def process(self, packet: FramePacket) -> FramePacket:
-        start = time.perf_counter()
         camera = packet.camera
         usable = [d for d in packet.detections if d.foot_xy is not None]
         if is_calibrated(camera) and usable:
             self.measure(camera, usable)
-        packet.timings_ms["geometry"] = (time.perf_counter() - start) * 1000
         return packet
 
     def measure(self, camera: CameraInfo, detections: list[Detection]) -> None:

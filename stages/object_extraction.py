@@ -24,7 +24,6 @@ the foreground-share test). KNN is the default.
 
 from __future__ import annotations
 
-import time
 
 import cv2
 import numpy as np
@@ -111,7 +110,6 @@ class ObjectExtractor:
         self._prev_height_map: np.ndarray | None = None
 
     def process(self, packet: FramePacket) -> FramePacket:
-        start = time.perf_counter()
         image = packet.frame.image
         src_h, src_w = image.shape[:2]
         scale = self._work_scale(src_w)
@@ -126,7 +124,6 @@ class ObjectExtractor:
         above, work_heights = self._above_ground(packet, work_size)
         if moving is None and above is None:
             packet.detections = []
-            packet.timings_ms["object_extraction"] = (time.perf_counter() - start) * 1000
             return packet
         if moving is None:
             candidate = above
@@ -147,7 +144,6 @@ class ObjectExtractor:
             self._add_consistency_noise(detections, packet)
         packet.detections = detections
         self._prev_height_map = packet.height_map
-        packet.timings_ms["object_extraction"] = (time.perf_counter() - start) * 1000
         return packet
 
     def _work_scale(self, src_w: int) -> float:

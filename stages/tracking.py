@@ -25,7 +25,6 @@ One frame, in order:
 
 from __future__ import annotations
 
-import time
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -339,7 +338,5 @@ class TrackingStage:
         self.tracker = ObjectTracker(config)
 
     def process(self, packet: FramePacket) -> FramePacket:
-        start = time.perf_counter()
         packet.tracks = self.tracker.update(packet.detections, packet.matches)
-        packet.timings_ms["tracking"] = (time.perf_counter() - start) * 1000
         return packet

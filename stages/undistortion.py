@@ -10,7 +10,6 @@ stage; the geometry stage only undistorts points itself when this stage did not 
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import cv2
 import numpy as np
@@ -40,7 +39,6 @@ class Undistorter:
         """The camera of the undistorted frames."""
 
     def process(self, packet: FramePacket) -> FramePacket:
-        start = time.perf_counter()
         image = packet.frame.image
         if (image.shape[1], image.shape[0]) != self.size:
             raise SourceError(f"frame {packet.frame.index} is {image.shape[1]}x{image.shape[0]}, "
@@ -48,5 +46,4 @@ class Undistorter:
         packet.frame.image = cv2.remap(image, self.map_x, self.map_y, cv2.INTER_LINEAR,
                                        borderMode=cv2.BORDER_CONSTANT)
         packet.camera = self.camera
-        packet.timings_ms["undistortion"] = (time.perf_counter() - start) * 1000
         return packet

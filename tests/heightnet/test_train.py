@@ -43,7 +43,7 @@ def test_bad_input_size_is_a_config_error(tmp_path, cached_sequences):
         train(small_config(tmp_path, input_width=70), cached_sequences, progress=False)
 
 
-def test_training_reduces_the_loss_on_a_fixed_batch(tmp_path, cached_sequences):
+def test_thirty_steps_reduce_the_logged_loss(tmp_path, cached_sequences):
     config = small_config(tmp_path, steps=30, lr=3e-3, checkpoint_every=1000)
     train(config, cached_sequences, progress=False)
     rows = list(csv.DictReader((tmp_path / "run" / "log.csv").open()))

@@ -11,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO_ROOT, make_tiny_height_model, write_moving_box_video
+from media import REPO_ROOT, make_tiny_height_model, write_moving_box_video
+
+SAMPLE_CLIP = REPO_ROOT / "recordings" / "sample.mp4"
 from pipeline.config import Config
 
 CLIP_FRAMES = [20, 25, 30, 35, 40, 45]
@@ -43,14 +45,29 @@ def model(tmp_path_factory) -> Path:
     return make_tiny_height_model(tmp_path_factory.mktemp("model") / "tiny.onnx")
 
 
+def write_generator_clip(path: Path, start: int, frames: int) -> None:
+    """A piece of the generator-rendered sample clip, at half size to keep the test fast."""
+    import cv2
+
+    capture = cv2.VideoCapture(str(SAMPLE_CLIP))
+    capture.set(cv2.CAP_PROP_POS_FRAMES, start)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 15.0, (320, 180))
+    for _ in range(frames):
+        ok, image = capture.read()
+        assert ok, f"{SAMPLE_CLIP} has fewer than {start + frames} frames"
+        writer.write(cv2.resize(image, (320, 180), interpolation=cv2.INTER_AREA))
+    writer.release()
+    capture.release()
+
+
 @pytest.fixture(scope="module")
 def archive(tmp_path_factory) -> Path:
-    """Six short clips (two share the stem 'clip0' in different folders) and a corrupt file."""
+    """Six short generator clips (two share the stem 'clip0' in different folders) and a corrupt file."""
     root = tmp_path_factory.mktemp("archive")
     for i, frames in enumerate(CLIP_FRAMES):
         folder = root / ("cam_a" if i < 3 else "cam_b")
         folder.mkdir(exist_ok=True)
-        write_moving_box_video(folder / f"clip{i % 3}.mp4", frames=frames)
+        write_generator_clip(folder / f"clip{i % 3}.mp4", start=20 * i, frames=frames)
     (root / "cam_b" / "broken.mp4").write_text("not a video\n" * 50)
     (root / "cam_b" / "notes.txt").write_text("a folder's non-video files are not inputs\n")
     return root
@@ -79,7 +96,7 @@ def test_local_batch_processes_every_clip_and_reports_the_corrupt_one(local_batc
     for source, entry in done.items():
         assert entry["frames"] == CLIP_FRAMES[["cam_a", "cam_b"].index(Path(source).parent.name) * 3
                                               + int(Path(source).stem[-1])]
-        assert entry["duration_s"] == pytest.approx(entry["frames"] / 10.0)
+        assert entry["duration_s"] == pytest.approx(entry["frames"] / 15.0)  # clips are 15 fps
         assert sorted(Path(name).name.split(".", 1)[1] for name in entry["outputs"]) == ["mcap", "rrd", "tracks.csv"]
         assert all((out / name).stat().st_size > 0 for name in entry["outputs"])
     assert not list((out / ".partial").iterdir())

@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from conftest import REPO_ROOT, SHARED_REAL
+from media import REPO_ROOT, SHARED_REAL
 from stages.heightnet_model import SHIPPED_MODEL
 
 TRAFFIC = SHARED_REAL / "traffic_bridge" / "car_traffic_small.mp4"

@@ -1,7 +1,6 @@
 """`heightpipe run` as a user meets it: outputs, bad input, and stopping mid-run."""
 
 import csv
-import os
 import signal
 import subprocess
 import sys
@@ -10,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPO_ROOT, make_tiny_height_model, write_moving_box_video
+from media import REPO_ROOT, make_tiny_height_model, write_moving_box_video
 
 CSV_HEADER = ["frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score", "height_m", "height_std_m"]
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import SHARED_REAL, write_moving_box_video
+from media import SHARED_REAL
 from pipeline.config import CaptureConfig
 from pipeline.errors import SourceError
 from stages.capture import StreamSource, open_source

@@ -184,12 +184,12 @@ def test_long_objects_get_more_noise_than_people():
 
 @pytest.fixture(scope="module")
 def synth_sequence(tmp_path_factory):
-    """Three rendered frames of a street with a known camera (MuJoCo, ~5 s)."""
+    """Six rendered frames of a street with a known camera (MuJoCo, ~8 s)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     sequence_module = pytest.importorskip("synth.sequence")
     writer = pytest.importorskip("synth.writer")
     dataset = pytest.importorskip("synth.dataset")
-    options = sequence_module.SequenceOptions(frames=3, sizes=((640, 480),), shadows=False, post_effects=False,
+    options = sequence_module.SequenceOptions(frames=6, sizes=((640, 480),), shadows=False, post_effects=False,
                                               pedestrians=(10, 12), vehicles=(2, 3))
     plan = sequence_module.plan_sequence(3, 0, options)
     root = tmp_path_factory.mktemp("synth")

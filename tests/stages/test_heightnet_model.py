@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from conftest import make_tiny_height_model
+from media import make_tiny_height_model
 from pipeline.config import GroundConfig
 from pipeline.errors import ModelError
 from pipeline.packets import CameraInfo, Frame, FramePacket
