@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import statistics
 from collections import defaultdict
 
@@ -21,6 +22,18 @@ def _size(path) -> str:
     return f"{size / 1e6:.1f} MB" if size >= 1e5 else f"{size / 1e3:.0f} kB"
 
 
+def _class_summary(cls: str, heights: list[float]) -> str:
+    """'person 5 (median 1.74 m)'; tracks with no measurable height (top cut by the frame) are counted apart."""
+    known = [h for h in heights if math.isfinite(h)]
+    text = f"{cls} {len(heights)}"
+    if known:
+        text += f" (median {statistics.median(known):.2f} m"
+        text += f", {len(heights) - len(known)} without a height)" if len(known) < len(heights) else ")"
+    else:
+        text += " (no height: tops outside the frame)"
+    return text
+
+
 def format_summary(summary: RunSummary) -> str:
     lines = [f"heightpipe: processed {summary.frames} frames of {summary.source} in "
              f"{summary.wall_s:.1f} s ({summary.fps:.1f} frames/s)"]
@@ -32,8 +45,8 @@ def format_summary(summary: RunSummary) -> str:
     for cls, height, _std in summary.confirmed_tracks.values():
         by_class[cls].append(height)
     if by_class:
-        parts = [f"{cls} {len(h)} (median {statistics.median(h):.2f} m)" for cls, h in sorted(by_class.items())]
-        lines.append(f"  tracks: {len(summary.confirmed_tracks)} confirmed: " + ", ".join(parts))
+        lines.append(f"  tracks: {len(summary.confirmed_tracks)} confirmed: "
+                     + ", ".join(_class_summary(cls, h) for cls, h in sorted(by_class.items())))
     else:
         lines.append("  tracks: none confirmed")
     if summary.frames:
