@@ -82,6 +82,9 @@ def main() -> None:
         print(f"| {name} | {per_frame:.1f} | {per_frame / total:.0%} |")
     other = 1000.0 / summary.fps - total
     print(f"| capture (decode) and loop overhead | {other:.1f} | |")
+    print()
+    print("The height network (both heads) runs once per frame inside the 'ground' stage; "
+          "'height' only rescales its cached output.")
 
 
 if __name__ == "__main__":
