@@ -64,3 +64,36 @@ def write_moving_box_video(path: Path, frames: int = 30, size=(160, 120), fps: f
         writer.write(image)
     writer.release()
     return path
+
+
+def write_truncated_avi(path: Path, frames: int = 40) -> Path:
+    """An MJPEG AVI whose second half is cut off: its header promises ``frames`` frames."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for i in range(frames):
+        writer.write(np.full((48, 64, 3), i * 5, np.uint8))
+    writer.release()
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    return path
+
+
+def make_sink_packet(index: int, with_maps: bool = True, with_ground: bool = True):
+    """A 64x48 frame with a 1.72 m object for the sink tests; track 1 confirmed from frame 4,
+    track 2 always, track 3 never. ``with_maps=False`` drops the height map and the matches."""
+    from pipeline.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
+
+    width, height_px = 64, 48
+    rng = np.random.default_rng(index)
+    height = np.zeros((height_px, width), np.float32)
+    height[10:30, 20:30] = 1.72
+    points = rng.uniform(0, [width, height_px], (30, 2)).astype(np.float32)
+    tracks = [Track(1, (20, 10, 10, 20), "person", 1.72, 0.04, confirmed=index >= 4),
+              Track(2, (5, 5, 8, 8), "vehicle", 1.2, 0.3, confirmed=True),
+              Track(3, (40, 30, 5, 5), "other", 0.6, 0.5, confirmed=False)]
+    return FramePacket(
+        frame=Frame(index, index / 10, rng.integers(0, 255, (height_px, width, 3), dtype=np.uint8)),
+        camera=CameraInfo(width, height_px, K=np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])),
+        ground_mask=height < 0.1 if with_ground else None,
+        height_map=height if with_maps else None,
+        matches=FeatureMatches(points, points + 1, np.arange(30) < 10) if with_maps else None,
+        tracks=tracks)

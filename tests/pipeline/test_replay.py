@@ -7,35 +7,23 @@ import subprocess
 from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
 from pipeline import cli
 from pipeline.config import OutputConfig
-from pipeline.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
+from pipeline.packets import FramePacket
 from stages.mcap_sink import McapSink
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder
 
-W, H = 64, 48
+from media import make_sink_packet
+
 
 
 def make_packet(index: int) -> FramePacket:
-    """Track 1 confirmed from frame 4, track 3 never; frame 6 has no height map or matches."""
-    rng = np.random.default_rng(index)
-    height = np.zeros((H, W), np.float32)
-    height[10:30, 20:30] = 1.72
-    points = rng.uniform(0, [W, H], (30, 2)).astype(np.float32)
-    tracks = [Track(1, (20, 10, 10, 20), "person", 1.72, 0.04, confirmed=index >= 4),
-              Track(2, (5, 5, 8, 8), "vehicle", 1.2, 0.3, confirmed=True),
-              Track(3, (40, 30, 5, 5), "other", 0.6, 0.5, confirmed=False)]
-    return FramePacket(
-        frame=Frame(index, index / 10, rng.integers(0, 255, (H, W, 3), dtype=np.uint8)),
-        camera=CameraInfo(W, H, K=np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])),
-        ground_mask=height < 0.1, height_map=None if index == 6 else height,
-        matches=None if index == 6 else FeatureMatches(points, points + 1, np.arange(30) < 10),
-        tracks=tracks)
+    """Frame 6 has no height map or matches (it keeps its ground mask)."""
+    return make_sink_packet(index, with_maps=index != 6)
 
 
 def rrd_rows(path: Path) -> dict[str, list[tuple[int, dict]]]:

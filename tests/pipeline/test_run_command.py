@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from media import REPO_ROOT, make_tiny_height_model, write_moving_box_video
+from media import REPO_ROOT, make_tiny_height_model, write_moving_box_video, write_truncated_avi
 
 CSV_HEADER = ["frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score", "height_m", "height_std_m"]
 
@@ -68,16 +68,7 @@ def test_file_that_is_not_a_video(tmp_path, model_flag):
 
 
 def test_truncated_video_processes_what_decodes_and_says_so(tmp_path, model_flag):
-    import cv2
-    import numpy as np
-
-    path = tmp_path / "clip.avi"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
-    for i in range(40):
-        writer.write(np.full((48, 64, 3), i * 5, np.uint8))
-    writer.release()
-    data = path.read_bytes()
-    path.write_bytes(data[: len(data) // 2])
+    path = write_truncated_avi(tmp_path / "clip.avi", frames=40)
     result = heightpipe("run", path, "--out", tmp_path / "cut", "--rerun", "off", "--no-progress", *model_flag)
     assert result.returncode == 0, result.stderr
     assert "header claims 40" in result.stderr

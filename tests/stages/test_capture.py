@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from media import SHARED_REAL
+from media import SHARED_REAL, write_truncated_avi
 from pipeline.config import CaptureConfig
 from pipeline.errors import SourceError
 from stages.capture import StreamSource, open_source
@@ -51,14 +51,7 @@ def test_file_that_is_not_a_video(tmp_path):
 
 
 def test_truncated_video_processes_what_decodes(tmp_path):
-    path = tmp_path / "clip.avi"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
-    for i in range(40):
-        writer.write(np.full((48, 64, 3), i * 5, np.uint8))
-    writer.release()
-    data = path.read_bytes()
-    cut = tmp_path / "cut.avi"
-    cut.write_bytes(data[: len(data) // 2])
+    cut = write_truncated_avi(tmp_path / "cut.avi", frames=40)
     source = open_source(str(cut), CaptureConfig())
     frames = list(source.frames())
     assert 5 < len(frames) < 40

@@ -16,30 +16,19 @@ from rerun.chunk import RrdReader
 
 from pipeline.config import OutputConfig
 from pipeline.errors import ConfigError, HeightpipeError
-from pipeline.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
+from pipeline.packets import FramePacket
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder
+
+from media import make_sink_packet
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 W, H = 64, 48
 
 
 def make_packet(index: int, complete: bool = True) -> FramePacket:
-    """A 64x48 frame with a 1.72 m object; track 1 confirmed from frame 4, track 3 never."""
-    rng = np.random.default_rng(index)
-    height = np.zeros((H, W), np.float32)
-    height[10:30, 20:30] = 1.72
-    points = rng.uniform(0, [W, H], (30, 2)).astype(np.float32)
-    tracks = [Track(1, (20, 10, 10, 20), "person", 1.72, 0.04, confirmed=index >= 4),
-              Track(2, (5, 5, 8, 8), "vehicle", 1.2, 0.3, confirmed=True),
-              Track(3, (40, 30, 5, 5), "other", 0.6, 0.5, confirmed=False)]
-    return FramePacket(
-        frame=Frame(index, index / 10, rng.integers(0, 255, (H, W, 3), dtype=np.uint8)),
-        camera=CameraInfo(W, H, K=np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])),
-        ground_mask=height < 0.1 if complete else None,
-        height_map=height if complete else None,
-        matches=FeatureMatches(points, points + 1, np.arange(30) < 10) if complete else None,
-        tracks=tracks)
+    """An incomplete frame lacks the ground mask, height map and matches."""
+    return make_sink_packet(index, with_maps=complete, with_ground=complete)
 
 
 def rrd_rows(path: Path) -> dict[str, list[tuple[int, dict]]]:
@@ -149,7 +138,7 @@ def _port_free(port: int) -> bool:
 def test_serve_mode_streams_and_still_writes_the_file(tmp_path):
     # A subprocess: the web viewer server lives until its process exits.
     script = (
-        "import sys; sys.path.insert(0, sys.argv[1]); sys.path.insert(0, sys.argv[2])\n"
+        "import sys; sys.path[:0] = sys.argv[1:3] + [sys.argv[4]]\n"
         "from pathlib import Path\n"
         "from test_rerun_sink import make_packet\n"
         "from pipeline.config import OutputConfig\n"
@@ -159,7 +148,8 @@ def test_serve_mode_streams_and_still_writes_the_file(tmp_path):
         "sink.close()\n")
     path = tmp_path / "served.rrd"
     result = subprocess.run([sys.executable, "-c", script, str(REPO_ROOT), str(Path(__file__).parent),
-                             str(path)], capture_output=True, text=True, timeout=120)
+                             str(path), str(Path(__file__).parents[1])], capture_output=True, text=True,
+                            timeout=120)
     assert result.returncode == 0, result.stderr
     assert "web viewer at http://127.0.0.1:9090/?url=rerun%2Bhttp://127.0.0.1:9876/proxy" in result.stderr
     assert [frame for frame, _ in rrd_rows(path)["/camera/image"]] == [0, 1, 2]
