@@ -14,6 +14,7 @@ A rerun skips every input whose file, config and outputs are unchanged; --force 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import glob
 import hashlib
 import os
@@ -324,13 +325,10 @@ class _Recorder:
         if result.status == DONE and previous is not None:
             for stale in set(previous.outputs) - set(result.outputs):  # e.g. the .rrd, now turned off
                 (self.out_dir / stale).unlink(missing_ok=True)
+        # Every TaskResult field is a ManifestEntry field; the entry adds what the batch knows.
         self.manifest.entries[result.source] = ManifestEntry(
-            source=result.source, output_name=self.output_names[result.source],
-            identity=self.identities[result.source], config_fingerprint=self.fingerprint, status=result.status,
-            error=result.error, outputs=result.outputs, frames=result.frames, failed_frames=result.failed_frames,
-            duration_s=result.duration_s, video_fps=result.video_fps, wall_s=result.wall_s, tracks=result.tracks,
-            camera=result.camera, started_at=result.started_at, finished_at=result.finished_at,
-            engine=self.engine, worker=result.worker)
+            output_name=self.output_names[result.source], identity=self.identities[result.source],
+            config_fingerprint=self.fingerprint, engine=self.engine, **dataclasses.asdict(result))
         self.manifest.save()
         report = self.report
         report.interrupted += result.status == INTERRUPTED
