@@ -58,6 +58,7 @@ def ground_loss(ground_logit: torch.Tensor, ground: torch.Tensor, mask: torch.Te
 class LossWeights:
     si_lambda: float = 0.85
     above_ground: float = 1.0
+    above_ground_lambda: float = 0.0
     consistency: float = 1.0
     ground: float = 0.2
 
@@ -67,9 +68,12 @@ def heightnet_loss(encoded: torch.Tensor, ground_logit: torch.Tensor, batch: dic
                    above_ground_threshold_m: float = 0.1) -> dict[str, torch.Tensor]:
     """All loss terms for a batch of B pairs (network outputs B*2 x 1 x H x W, pairs interleaved).
 
-    total = SI(all labelled pixels) + above_ground * SI(pixels above 0.1 m)
+    total = SI(all labelled pixels) + above_ground * SI'(pixels above 0.1 m)
             + consistency * L_h(matched mover points) + ground * BCE(ground plane)
-    The extra above-ground SI term keeps the few object pixels from drowning in ground pixels.
+    The extra above-ground term keeps the few object pixels from drowning in ground pixels. Its
+    own lambda defaults to 0 (plain log RMSE): with the paper's 0.85 a uniform under-estimate of
+    every object costs only 15 % of its squared log error, and a model trained so read object
+    heights at 0.62x truth (median over held-out mover pixels).
     """
     target = batch["target"].flatten(0, 1)
     labelled = torch.isfinite(target)
@@ -79,7 +83,8 @@ def heightnet_loss(encoded: torch.Tensor, ground_logit: torch.Tensor, batch: dic
         else torch.full_like(camera, above_ground_threshold_m)
     above = labelled & (target > threshold)
     si_all = scale_invariant_log_loss(encoded, target, encoding, labelled.float(), weights.si_lambda)
-    si_above = scale_invariant_log_loss(encoded, target, encoding, above.float(), weights.si_lambda)
+    si_above = scale_invariant_log_loss(encoded, target, encoding, above.float(),
+                                        weights.above_ground_lambda)
     # Clamped before exp: an early wild prediction must not blow the squared loss up.
     decoded = torch.relu(torch.exp(encoded.clamp(max=3.5)) - encoding.offset)
     metres = encoding.metres_from_output(decoded, camera)

@@ -92,8 +92,8 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
     dataset = PairDataset(sequences, config.input_width, config.input_height, config.target,
                           Augmentation(), config.max_matches, config.seed)
     batches_per_epoch = max(1, len(dataset) // config.batch_size)
-    weights = LossWeights(config.si_lambda, config.above_ground_weight, config.consistency_weight,
-                          config.ground_weight)
+    weights = LossWeights(config.si_lambda, config.above_ground_weight, config.above_ground_lambda,
+                          config.consistency_weight, config.ground_weight)
     end = config.steps if max_steps is None else min(config.steps, step + max_steps)
     log_file = (run_dir / "log.csv").open("a", newline="")
     log = csv.DictWriter(log_file, LOG_FIELDS)

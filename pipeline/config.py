@@ -203,7 +203,9 @@ class TrainConfig:
     si_lambda: float = 0.85
     """Balance of the scale-invariant log loss (0 = plain log MSE, 1 = fully scale-invariant)."""
     above_ground_weight: float = 1.0
-    """Weight of the extra scale-invariant term on pixels above 0.1 m (objects)."""
+    """Weight of the extra log-error term on pixels above 0.1 m (objects)."""
+    above_ground_lambda: float = 0.0
+    """Lambda of that term: 0 penalises a uniform under- or over-estimate of objects in full."""
     consistency_weight: float = 1.0
     """Weight of the height consistency loss between matched points of frames t-1, t (m^2)."""
     ground_weight: float = 0.2

@@ -13,7 +13,7 @@ from pipeline.packets import FramePacket
 from stages.sink_common import confirmed
 
 CSV_HEADER = ("frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score",
-              "height_m", "height_std_m")
+              "height_m", "height_std_m", "height_source")
 
 
 class TrackCsvSink:
@@ -34,7 +34,7 @@ class TrackCsvSink:
             self._writer.writerow((
                 frame.index, f"{frame.time_s:.4f}", track.track_id, track.cls,
                 f"{x:.1f}", f"{y:.1f}", f"{w:.1f}", f"{h:.1f}", f"{track.score:.3f}",
-                f"{track.height_m:.3f}", f"{track.height_std_m:.3f}"))
+                f"{track.height_m:.3f}", f"{track.height_std_m:.3f}", track.height_source))
         self._file.flush()
 
     def close(self) -> None:

@@ -8,7 +8,8 @@ Two cues, each covering the other's failure:
 
 A pixel belongs to an object candidate when it is foreground *and* above the ground (and not
 on the ground mask). Without a height map the foreground alone is used; with ``background =
-"none"`` the height map alone. The work is done on a downscaled frame (``work_width``) so the
+"none"`` the height map alone. A global brightness change (auto exposure) is divided out
+before background subtraction. The work is done on a downscaled frame (``work_width``) so the
 stage costs a few milliseconds; boxes and heights are measured back in source pixels.
 
 Then: blobs that are mostly not foreground (rain over a facade) or taller than any mover
@@ -42,6 +43,12 @@ _FOREGROUND_VALUE = 255
 CORE_SHARE = 0.6
 CORE_MIN_SHARE = 0.15
 CORE_MIN_AREA_SHARE = 0.25
+# Exposure compensation: log-ratio histogram (bins of 0.02 over a factor of e each way) and the
+# gain change below which a frame is left alone (10 %: smaller steps are left to the model).
+EXPOSURE_BINS = 100
+EXPOSURE_RANGE = (-1.0, 1.0)
+EXPOSURE_TOLERANCE = 0.1
+REFERENCE_RATE = 0.05  # running mean of the scene that the gain is measured against
 # Matched points an object needs for a height-consistency residual.
 MIN_CONSISTENCY_POINTS = 3
 
@@ -102,6 +109,7 @@ class ObjectExtractor:
 
     def __init__(self, config: TrackingConfig, ground: GroundConfig):
         self.config = config
+        self._reference: np.ndarray | None = None
         self.height_threshold_m = ground.height_threshold_m
         self.subtractor = make_background_subtractor(config.background)
         # Closing joins a person's legs and arms; opening removes speckle. 3x3 at work size.
@@ -118,6 +126,7 @@ class ObjectExtractor:
 
         moving = None
         if self.subtractor is not None:
+            small = self._compensate_exposure(small)
             moving = self.subtractor.apply(small) == _FOREGROUND_VALUE
             packet.foreground = _resize_mask(moving, (src_w, src_h))
 
@@ -145,6 +154,30 @@ class ObjectExtractor:
         packet.detections = detections
         self._prev_height_map = packet.height_map
         return packet
+
+    def _compensate_exposure(self, small: np.ndarray) -> np.ndarray:
+        """Undo a global brightness change (auto exposure, a cloud) before background subtraction.
+
+        When a bus fills half the view, the camera's exposure brightens the whole scene and a
+        background model flags every pixel. Unchanged pixels all differ from the background by
+        one gain, so the gain is the peak of the log-ratio histogram against a slow running mean
+        of the (compensated) frames; the moving object's pixels spread over many bins. The frame
+        is divided by the gain when it is more than ``EXPOSURE_TOLERANCE`` off. (OpenCV's own
+        background image is not used: reading it from the KNN model changes its later output.)
+        """
+        grey = small.astype(np.float32).mean(axis=2) + 4.0
+        if self._reference is None:
+            self._reference = grey
+            return small
+        counts, edges = np.histogram(np.log(grey / self._reference), bins=EXPOSURE_BINS,
+                                     range=EXPOSURE_RANGE)
+        peak = int(np.argmax(counts))
+        gain = float(np.exp((edges[peak] + edges[peak + 1]) / 2.0))
+        if abs(gain - 1.0) > EXPOSURE_TOLERANCE:
+            small = np.clip(small.astype(np.float32) / gain, 0, 255).astype(np.uint8)
+            grey = (grey - 4.0) / gain + 4.0
+        self._reference += REFERENCE_RATE * (grey - self._reference)
+        return small
 
     def _work_scale(self, src_w: int) -> float:
         if self.config.work_width <= 0 or self.config.work_width >= src_w:

@@ -20,7 +20,8 @@ One frame, in order:
    window: stature, not the gait's mean dip) and, where the camera is calibrated, the geometry
    height are fused into the height filter; outliers beyond ``height_gate_sigma`` are skipped.
 7. Tracks are confirmed after ``min_hits`` hits in a row and dropped after ``max_misses``
-   frames without a hit; a tentative track is dropped at its first miss.
+   frames without a hit; a tentative track is dropped at its first miss; of two tracks
+   covering one object, the younger is dropped.
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ HEIGHT_RESTART_AFTER = 8
 # lost its top (occluded head, merged blob split): its height is trusted this much less.
 TOP_LOST_SHARE = 0.15
 TOP_LOST_NOISE_FACTOR = 3.0
+# Tracks overlapping more than this are one object counted twice (ByteTrack uses 0.85).
+DUPLICATE_IOU = 0.8
 # Gait correction applies to these classes.
 WALKER_CLASSES = ("person",)
 # Classes whose geometry height only stands in when the network has none (see _update_height).
@@ -139,7 +142,26 @@ class ObjectTracker:
         self.tracks = [t for t in self.tracks if self._alive(t)]
         for col in leftover_detections[1]:
             self._start_track(detections[col])
+        self._remove_duplicates()
         return [t.to_track() for t in self.tracks]
+
+    def _remove_duplicates(self) -> None:
+        """Two tracks on one object (a blob that split and merged again): the younger one goes.
+
+        As ByteTrack does, tracks whose boxes overlap by more than ``DUPLICATE_IOU`` are one
+        object; the one with fewer hits is the copy.
+        """
+        if len(self.tracks) < 2:
+            return
+        iou = iou_matrix([t.motion.box for t in self.tracks], [t.motion.box for t in self.tracks])
+        np.fill_diagonal(iou, 0.0)
+        drop = set()
+        for a, b in zip(*np.nonzero(np.triu(iou) > DUPLICATE_IOU)):
+            if a in drop or b in drop:
+                continue
+            older, younger = (a, b) if self.tracks[a].hits >= self.tracks[b].hits else (b, a)
+            drop.add(younger)
+        self.tracks = [t for i, t in enumerate(self.tracks) if i not in drop]
 
     # -- association -----------------------------------------------------------------------
 

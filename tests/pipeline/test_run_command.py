@@ -11,7 +11,8 @@ import pytest
 
 from media import REPO_ROOT, make_tiny_height_model, write_moving_box_video, write_truncated_avi
 
-CSV_HEADER = ["frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score", "height_m", "height_std_m"]
+CSV_HEADER = ["frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score", "height_m", "height_std_m",
+              "height_source"]
 
 
 def heightpipe(*args, timeout=120):

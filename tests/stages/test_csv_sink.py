@@ -11,7 +11,7 @@ from pipeline.errors import HeightpipeError
 from pipeline.packets import CameraInfo, Frame, FramePacket, Track
 from stages.csv_sink import TrackCsvSink
 
-HEADER = "frame,time_s,track_id,class,x,y,w,h,score,height_m,height_std_m"
+HEADER = "frame,time_s,track_id,class,x,y,w,h,score,height_m,height_std_m,height_source"
 
 
 def make_packet(index: int, tracks: list[Track]) -> FramePacket:
@@ -26,12 +26,13 @@ def test_rows_are_confirmed_tracks_and_reach_disk_every_frame(tmp_path):
                                      score=0.9, confirmed=False)]))
     sink.write(make_packet(3, [Track(7, (11.0, 20.5, 5.0, 12.5), "person", 1.7234, 0.0412,
                                      score=0.9, confirmed=True),
-                               Track(9, (40.0, 30.0, 8.0, 8.0), "vehicle", 1.41, 0.2, confirmed=True)]))
+                               Track(9, (40.0, 30.0, 8.0, 8.0), "vehicle", 1.41, 0.2, confirmed=True,
+                                     height_source="fused")]))
     # Before close(): what a crash would leave behind.
     lines = path.read_text().splitlines()
     assert lines[0] == HEADER
-    assert lines[1:] == ["3,0.1200,7,person,11.0,20.5,5.0,12.5,0.900,1.723,0.041",
-                         "3,0.1200,9,vehicle,40.0,30.0,8.0,8.0,1.000,1.410,0.200"]
+    assert lines[1:] == ["3,0.1200,7,person,11.0,20.5,5.0,12.5,0.900,1.723,0.041,network",
+                         "3,0.1200,9,vehicle,40.0,30.0,8.0,8.0,1.000,1.410,0.200,fused"]
     sink.write(make_packet(4, []))
     sink.close()
     rows = list(csv.DictReader(path.open()))

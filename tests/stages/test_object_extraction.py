@@ -178,3 +178,16 @@ def test_height_consistency_residual_raises_the_noise():
             packet = extractor.process(packet)
         noises[wobble] = packet.detections[0].height_noise_m
     assert noises[0.3] > noises[0.0] + 0.1
+
+
+def test_a_global_brightness_jump_is_not_foreground():
+    """Auto exposure brightening the whole view (a bus fills half of it) must not flag every pixel."""
+    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    frames = _walk(20)
+    for index, people in enumerate(frames):
+        image, heights, ground = _scene(index, people, rng=np.random.default_rng(index))
+        if index >= 18:
+            image = np.clip(image.astype(np.float32) * 1.5, 0, 255).astype(np.uint8)
+        packet = extractor.process(_packet(index, image, heights, ground))
+    assert packet.foreground.mean() < 0.1
+    assert [d.height_m for d in packet.detections] == [pytest.approx(1.75, abs=0.06)]

@@ -210,3 +210,13 @@ def test_matched_points_vote_for_the_blob_that_continues_a_track():
     tracks = tracker.update([left, right], matches)
     continued = [t for t in tracks if t.track_id == 1][0]
     assert continued.box[0] > 105
+
+
+def test_two_tracks_on_one_object_become_one():
+    """One object detected twice (nested blobs) must not become two tracks; the older one stays."""
+    tracker = ObjectTracker(TrackingConfig(min_hits=1))
+    for i in range(5):
+        tracks = tracker.update([_detection(100 + 2 * i, 100, 1.7)])
+    for i in range(5, 9):
+        tracks = tracker.update([_detection(100 + 2 * i, 100, 1.7), _detection(101 + 2 * i, 101, 1.7)])
+        assert [t.track_id for t in tracks] == [1]

@@ -1,0 +1,211 @@
+"""Metric heights on real footage: Oxford Town Centre in each calibration mode, against its labels.
+
+Runs ``heightpipe run`` on ``../shared/real/oxford_towncentre/oxford_snipped.mp4`` as a user would,
+once per mode, and compares the confirmed person tracks of ``PREFIX.tracks.csv`` with
+``gt_with_geometry.csv`` (per-person head-top and foot points and heights, 1.80 m for everyone
+in this clip):
+
+* ``calibration``: ``--calibration calib_opencv.json`` (frames undistorted, geometry on);
+* ``camera-height``: ``--camera-height 7.84`` only (network height x camera height);
+* ``self``: ``heightpipe calibrate`` on the clip first (with the file's intrinsics only), then
+  a run with the snippet it prints; a refusal is reported as such.
+
+Per mode: confirmed person tracks, their mean / min / max final height, how many lie outside
+1.5-2.1 m, the median error of tracks matched to a labelled person, and the median pixel error
+of the tracks' head-top and foot points (top and bottom centre of the track box) against the
+labelled points, in the frame the run worked in (undistorted where it undistorted).
+
+    python -m bench.real_heights [--modes calibration,camera-height,self] [--out runs/real_heights]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+OXFORD = Path(__file__).resolve().parents[2] / "shared" / "real" / "oxford_towncentre"
+VIDEO = OXFORD / "oxford_snipped.mp4"
+CALIBRATION = OXFORD / "calib_opencv.json"
+LABELS = OXFORD / "gt_with_geometry.csv"
+CAMERA_HEIGHT_M = 7.84
+PERSON_RANGE_M = (1.5, 2.1)
+MATCH_IOU = 0.3
+MODES = ("calibration", "camera-height", "self")
+
+
+@dataclass
+class LabelledPerson:
+    person: int
+    box: np.ndarray       # x1, y1, x2, y2 in the run's frame
+    head: np.ndarray      # head-top point (u, v)
+    foot: np.ndarray      # foot point (u, v)
+    foot_inside: bool
+    height_m: float
+
+
+@dataclass
+class ModeResult:
+    mode: str
+    note: str = ""
+    persons: int = 0
+    mean_m: float = float("nan")
+    min_m: float = float("nan")
+    max_m: float = float("nan")
+    outside: int = 0
+    matched: int = 0
+    median_error_m: float = float("nan")
+    head_px: float = float("nan")
+    foot_px: float = float("nan")
+
+
+def load_labels(undistort: bool) -> dict[int, list[LabelledPerson]]:
+    """Labelled people per frame, points moved into the undistorted frame if the run undistorted."""
+    from stages.calibration import load_calibration, undistort_pixels
+
+    camera = load_calibration(CALIBRATION)
+    frames: dict[int, list[LabelledPerson]] = {}
+    with open(LABELS, newline="") as f:
+        for row in csv.DictReader(f):
+            if row["body_valid"] != "1" or row["head_valid"] != "1":
+                continue
+            x1, y1, x2, y2 = (float(row[k]) for k in ("body_x1", "body_y1", "body_x2", "body_y2"))
+            points = np.array([[float(row["headtop_u"]), float(row["headtop_v"])],
+                               [float(row["foot_u"]), float(row["foot_v"])],
+                               [x1, y1], [x2, y1], [x1, y2], [x2, y2]])
+            if undistort:
+                points = undistort_pixels(camera, points)
+            corners = points[2:]
+            box = np.array([*corners.min(0), *corners.max(0)])
+            frames.setdefault(int(row["frame"]), []).append(LabelledPerson(
+                int(row["person"]), box, points[0], points[1], row["foot_inside_image"] == "1",
+                float(row["height_headtop_m"])))
+    return frames
+
+
+def read_tracks(path: Path) -> dict[int, list[dict]]:
+    rows: dict[int, list[dict]] = {}
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            rows.setdefault(int(row["frame"]), []).append(row)
+    return rows
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = w * h
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / union if union > 0 else 0.0
+
+
+def score(mode: str, tracks_csv: Path, undistorted: bool) -> ModeResult:
+    """Compare a run's confirmed person tracks with the labels."""
+    labels = load_labels(undistorted)
+    by_frame = read_tracks(tracks_csv)
+    final: dict[int, dict] = {}
+    for frame in sorted(by_frame):
+        for row in by_frame[frame]:
+            final[int(row["track_id"])] = row
+    persons = {tid: float(row["height_m"]) for tid, row in final.items() if row["class"] == "person"}
+    heights = np.array([h for h in persons.values() if np.isfinite(h)])
+    result = ModeResult(mode, persons=len(persons))
+    if heights.size:
+        result.mean_m, result.min_m, result.max_m = heights.mean(), heights.min(), heights.max()
+        result.outside = int(((heights < PERSON_RANGE_M[0]) | (heights > PERSON_RANGE_M[1])).sum())
+
+    votes: dict[int, dict[int, int]] = {}
+    truth: dict[int, float] = {}
+    head_errors, foot_errors = [], []
+    for frame, rows in by_frame.items():
+        people = labels.get(frame, [])
+        for row in rows:
+            if int(row["track_id"]) not in persons:
+                continue
+            x, y, w, h = (float(row[k]) for k in ("x", "y", "w", "h"))
+            box = np.array([x, y, x + w, y + h])
+            ious = [_iou(box, p.box) for p in people]
+            if not ious or max(ious) < MATCH_IOU:
+                continue
+            person = people[int(np.argmax(ious))]
+            votes.setdefault(int(row["track_id"]), {}).setdefault(person.person, 0)
+            votes[int(row["track_id"])][person.person] += 1
+            truth[person.person] = person.height_m
+            head_errors.append(np.hypot(x + w / 2 - person.head[0], y - person.head[1]))
+            if person.foot_inside:
+                foot_errors.append(np.hypot(x + w / 2 - person.foot[0], y + h - person.foot[1]))
+    errors = []
+    for tid, counts in votes.items():
+        person = max(counts, key=counts.get)
+        if np.isfinite(persons[tid]):
+            errors.append(abs(persons[tid] - truth[person]))
+    result.matched = len(errors)
+    if errors:
+        result.median_error_m = float(np.median(errors))
+    if head_errors:
+        result.head_px = float(np.median(head_errors))
+    if foot_errors:
+        result.foot_px = float(np.median(foot_errors))
+    return result
+
+
+def run_mode(mode: str, out: Path, overrides: list[str]) -> ModeResult:
+    prefix = out / mode
+    base = [sys.executable, "-m", "pipeline.cli"]
+    args = ["--set", "output.progress=false"] + [a for o in overrides for a in ("--set", o)]
+    if mode == "calibration":
+        args += ["--calibration", str(CALIBRATION)]
+    elif mode == "camera-height":
+        args += ["--camera-height", str(CAMERA_HEIGHT_M)]
+    elif mode == "self":
+        snippet = out / "self_calibration.toml"
+        done = subprocess.run(base + ["calibrate", str(VIDEO), "--calibration", str(CALIBRATION),
+                                      "--no-progress", *args[2:]], capture_output=True, text=True)
+        if done.returncode != 0:
+            return ModeResult(mode, note=(done.stderr.strip().splitlines() or ["failed"])[-1])
+        snippet.write_text(done.stdout)
+        args += ["--config", str(snippet)]
+    done = subprocess.run(base + ["run", str(VIDEO), "--out", str(prefix), *args],
+                          capture_output=True, text=True)
+    if done.returncode not in (0,):
+        return ModeResult(mode, note=(done.stderr.strip().splitlines() or ["failed"])[-1])
+    result = score(mode, prefix.with_name(mode + ".tracks.csv"), undistorted=mode != "camera-height")
+    result.note = next((line.strip() for line in done.stdout.splitlines() if "camera:" in line), "")
+    return result
+
+
+def format_table(results: list[ModeResult]) -> str:
+    lines = ["| mode | person tracks | mean (m) | min-max (m) | outside 1.5-2.1 | matched | "
+             "median error (cm) | head px | foot px | note |", "|---" * 10 + "|"]
+    for r in results:
+        lines.append(f"| {r.mode} | {r.persons} | {r.mean_m:.3f} | {r.min_m:.2f}-{r.max_m:.2f} | "
+                     f"{r.outside} | {r.matched} | {100 * r.median_error_m:.1f} | {r.head_px:.1f} | "
+                     f"{r.foot_px:.1f} | {r.note} |")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--modes", default=",".join(MODES))
+    parser.add_argument("--out", default="runs/real_heights", type=Path)
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="config override for every run (repeatable)")
+    args = parser.parse_args()
+    if not VIDEO.is_file():
+        print(f"bench.real_heights: {VIDEO} not found", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = [run_mode(mode, args.out, args.set) for mode in args.modes.split(",")]
+    table = format_table(results)
+    (args.out / "table.md").write_text(table + "\n")
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
