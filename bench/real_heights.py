@@ -172,7 +172,7 @@ def run_mode(mode: str, out: Path, overrides: list[str]) -> ModeResult:
         args += ["--config", str(snippet)]
     done = subprocess.run(base + ["run", str(VIDEO), "--out", str(prefix), *args],
                           capture_output=True, text=True)
-    if done.returncode not in (0,):
+    if done.returncode != 0:
         return ModeResult(mode, note=(done.stderr.strip().splitlines() or ["failed"])[-1])
     result = score(mode, prefix.with_name(mode + ".tracks.csv"), undistorted=mode != "camera-height")
     result.note = next((line.strip() for line in done.stdout.splitlines() if "camera:" in line), "")

@@ -159,8 +159,7 @@ class ObjectTracker:
         for a, b in zip(*np.nonzero(np.triu(iou) > DUPLICATE_IOU)):
             if a in drop or b in drop:
                 continue
-            older, younger = (a, b) if self.tracks[a].hits >= self.tracks[b].hits else (b, a)
-            drop.add(younger)
+            drop.add(b if self.tracks[a].hits >= self.tracks[b].hits else a)
         self.tracks = [t for i, t in enumerate(self.tracks) if i not in drop]
 
     # -- association -----------------------------------------------------------------------
