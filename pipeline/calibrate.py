@@ -36,6 +36,7 @@ def main(args: argparse.Namespace, config) -> int:
 
     from pipeline.errors import ConfigError
     from pipeline.packets import FramePacket
+    from pipeline.run_command import apply_flags
     from stages.calibration import camera_for_run, has_distortion
     from stages.capture import open_source
     from stages.object_extraction import ObjectExtractor
@@ -43,14 +44,7 @@ def main(args: argparse.Namespace, config) -> int:
     from stages.tracking import TrackingStage
     from stages.undistortion import Undistorter
 
-    if args.calibration is not None:
-        config.camera.calibration = args.calibration
-    if args.fov is not None:
-        config.camera.fov_deg = args.fov
-    if args.max_frames is not None:
-        config.capture.max_frames = args.max_frames
-    if args.stride is not None:
-        config.capture.stride = args.stride
+    apply_flags(args, config)
     if config.capture.stride < 1:
         raise ConfigError("capture.stride must be at least 1")
     if not (0.5 < args.prior_mean < 2.5 and 0.0 < args.prior_std < 0.5):

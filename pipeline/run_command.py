@@ -22,19 +22,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+# Dedicated command-line flags and the config value each one sets (commands define some of them).
+FLAG_TO_CONFIG = {
+    "camera_height": ("camera", "height_m"),
+    "calibration": ("camera", "calibration"),
+    "fov": ("camera", "fov_deg"),
+    "max_frames": ("capture", "max_frames"),
+    "stride": ("capture", "stride"),
+    "rerun": ("output", "rerun"),
+}
+
+
 def apply_flags(args: argparse.Namespace, config: Config) -> None:
-    """Dedicated flags win over config.toml and --set."""
-    if args.camera_height is not None:
-        config.camera.height_m = args.camera_height
-    if args.calibration is not None:
-        config.camera.calibration = args.calibration
-    if args.max_frames is not None:
-        config.capture.max_frames = args.max_frames
-    if args.stride is not None:
-        config.capture.stride = args.stride
-    if args.rerun is not None:
-        config.output.rerun = args.rerun
-    if args.no_progress:
+    """Dedicated flags win over config.toml and --set (flags a command lacks are skipped)."""
+    for flag, (section, key) in FLAG_TO_CONFIG.items():
+        value = getattr(args, flag, None)
+        if value is not None:
+            setattr(getattr(config, section), key, value)
+    if getattr(args, "no_progress", False):
         config.output.progress = False
 
 
