@@ -97,3 +97,24 @@ def make_sink_packet(index: int, with_maps: bool = True, with_ground: bool = Tru
         height_map=height if with_maps else None,
         matches=FeatureMatches(points, points + 1, np.arange(30) < 10) if with_maps else None,
         tracks=tracks)
+
+
+def rrd_rows(path: Path, extra_columns: tuple[str, ...] = ()) -> dict[str, list[tuple[int, dict]]]:
+    """Temporal rows of an .rrd per entity, (frame, {component: value}), sorted by frame.
+
+    Component columns ("Archetype:field") are kept, plus ``extra_columns`` (e.g. the "time" index).
+    """
+    from collections import defaultdict
+
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, list[tuple[int, dict]]] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        columns = {name: batch.column(name).to_pylist() for name in batch.schema.names
+                   if ":" in name or name in extra_columns}
+        for i, frame in enumerate(batch.column("frame").to_pylist()):
+            rows[chunk.entity_path].append((frame, {name: values[i] for name, values in columns.items()}))
+    return {entity: sorted(items, key=lambda item: item[0]) for entity, items in rows.items()}

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-from collections import defaultdict
-from pathlib import Path
 
 import pytest
 from rerun.chunk import RrdReader
@@ -17,26 +15,13 @@ from stages.mcap_sink import McapSink
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder
 
-from media import make_sink_packet
+from media import make_sink_packet, rrd_rows
 
 
 
 def make_packet(index: int) -> FramePacket:
     """Frame 6 has no height map or matches (it keeps its ground mask)."""
     return make_sink_packet(index, with_maps=index != 6)
-
-
-def rrd_rows(path: Path) -> dict[str, list[tuple[int, dict]]]:
-    """Temporal rows per entity, (frame, {component: value}), sorted by frame."""
-    rows: dict[str, list[tuple[int, dict]]] = defaultdict(list)
-    for chunk in RrdReader(path).stream():
-        if chunk.is_static:
-            continue
-        batch = chunk.to_record_batch()
-        columns = {name: batch.column(name).to_pylist() for name in batch.schema.names if ":" in name}
-        for i, frame in enumerate(batch.column("frame").to_pylist()):
-            rows[chunk.entity_path].append((frame, {name: values[i] for name, values in columns.items()}))
-    return {entity: sorted(items, key=lambda item: item[0]) for entity, items in rows.items()}
 
 
 def comparable(rows: dict[str, list[tuple[int, dict]]]) -> dict[str, list]:

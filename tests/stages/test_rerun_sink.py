@@ -6,7 +6,6 @@ import shutil
 import socket
 import subprocess
 import sys
-from collections import defaultdict
 from pathlib import Path
 
 import cv2
@@ -20,7 +19,7 @@ from pipeline.packets import FramePacket
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder
 
-from media import make_sink_packet
+from media import make_sink_packet, rrd_rows
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 W, H = 64, 48
@@ -29,20 +28,6 @@ W, H = 64, 48
 def make_packet(index: int, complete: bool = True) -> FramePacket:
     """An incomplete frame lacks the ground mask, height map and matches."""
     return make_sink_packet(index, with_maps=complete, with_ground=complete)
-
-
-def rrd_rows(path: Path) -> dict[str, list[tuple[int, dict]]]:
-    """Temporal rows per entity, (frame, {component: value}), sorted by frame."""
-    rows: dict[str, list[tuple[int, dict]]] = defaultdict(list)
-    for chunk in RrdReader(path).stream():
-        if chunk.is_static:
-            continue
-        batch = chunk.to_record_batch()
-        columns = {name: batch.column(name).to_pylist() for name in batch.schema.names
-                   if ":" in name or name == "time"}
-        for i, frame in enumerate(batch.column("frame").to_pylist()):
-            rows[chunk.entity_path].append((frame, {name: values[i] for name, values in columns.items()}))
-    return {entity: sorted(items, key=lambda item: item[0]) for entity, items in rows.items()}
 
 
 def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
@@ -61,7 +46,7 @@ def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
     assert len(reader.recordings()) == 1
     assert len(reader.blueprints()) == 1, "the layout must be embedded in the .rrd"
 
-    rows = rrd_rows(path)
+    rows = rrd_rows(path, extra_columns=("time",))
     images = rows["/camera/image"]
     assert [frame for frame, _ in images] == indices
     assert [row["time"].total_seconds() for _, row in images] == pytest.approx([i / 10 for i in indices])
@@ -152,4 +137,4 @@ def test_serve_mode_streams_and_still_writes_the_file(tmp_path):
                             timeout=120)
     assert result.returncode == 0, result.stderr
     assert "web viewer at http://127.0.0.1:9090/?url=rerun%2Bhttp://127.0.0.1:9876/proxy" in result.stderr
-    assert [frame for frame, _ in rrd_rows(path)["/camera/image"]] == [0, 1, 2]
+    assert [frame for frame, _ in rrd_rows(path, extra_columns=("time",))["/camera/image"]] == [0, 1, 2]
