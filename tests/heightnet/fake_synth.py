@@ -1,4 +1,4 @@
-"""A tiny stand-in for synth/ with the same Python API (SynthSequence, SynthFrame, ObjectTruth).
+"""A tiny stand-in for a rendered synth sequence, built on synth.dataset's own records.
 
 A pinhole camera at height C looks down a flat ground plane; movers are upright billboards
 facing the camera (id-coloured, textured) walking sideways. Heights, ground mask, depth and
@@ -11,51 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-
-@dataclass
-class SynthCamera:
-    width: int
-    height: int
-    K: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
-    height_m: float
-    pitch_deg: float
-    roll_deg: float = 0.0
-    fov_deg: float = 60.0
-
-
-@dataclass
-class SequenceMeta:
-    layout: str
-    layout_seed: int
-    split: str
-    fps: float
-    weather: str
-    time_of_day: str
-    camera: SynthCamera
-
-
-@dataclass
-class SynthFrame:
-    rgb: np.ndarray
-    height_m: np.ndarray
-    ground: np.ndarray
-    depth_m: np.ndarray
-    bg_depth_m: np.ndarray
-    instance: np.ndarray
-    semantic: np.ndarray
-    time_s: float
-
-
-@dataclass
-class ObjectTruth:
-    id: int
-    cls: str
-    box: tuple[float, float, float, float]
-    visible_fraction: float
-    height_m: float
-    ground_xy_m: tuple[float, float]
+from synth.camera import SynthCamera
+from synth.dataset import ObjectTruth, SequenceMeta, SynthFrame
 
 
 @dataclass
@@ -144,7 +101,7 @@ def fake_camera(width: int, height: int, camera_height_m: float, pitch_deg: floa
     down = np.cross(forward, right)
     R = np.stack([right, down, forward])
     t = -R @ np.array([0, 0, camera_height_m])
-    return SynthCamera(width, height, K, R, t, camera_height_m, pitch_deg)
+    return SynthCamera(width, height, K, R, t, camera_height_m, pitch_deg, roll_deg=0.0, fov_deg=60.0)
 
 
 def fake_sequences(count: int = 2, frames: int = 4, width: int = 96, height: int = 64,
