@@ -57,20 +57,51 @@ class StopRequested(BaseException):
     """
 
 
-@contextmanager
-def _sigterm_stops_run() -> Iterator[None]:
-    def handler(signum, _frame):
-        raise StopRequested(signal.Signals(signum).name)
+class _StopSignals:
+    """Turns SIGTERM (and Ctrl-C) into ``StopRequested``, held back while a frame is being written.
 
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread (e.g. a batch worker thread): leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    A frame half-written (in the MCAP but not yet in the CSV or the frame count) would leave
+    outputs that disagree, so a signal arriving inside ``writing()`` waits for it to end.
+    """
+
+    def __init__(self) -> None:
+        self._writing = False
+        self._pending: str | None = None
+
+    def _handler(self, signum, _frame) -> None:
+        name = signal.Signals(signum).name
+        if self._writing:
+            self._pending = name
+            return
+        raise StopRequested(name)
+
+    @contextmanager
+    def installed(self) -> Iterator["_StopSignals"]:
+        try:
+            previous_term = signal.signal(signal.SIGTERM, self._handler)
+        except ValueError:  # not the main thread (e.g. a batch worker thread): leave signals alone
+            yield self
+            return
+        # SIGINT only where Python's own Ctrl-C handler is in place: a batch worker ignores it.
+        previous_int = signal.getsignal(signal.SIGINT)
+        if previous_int is signal.default_int_handler:
+            signal.signal(signal.SIGINT, self._handler)
+        try:
+            yield self
+        finally:
+            signal.signal(signal.SIGTERM, previous_term)
+            if previous_int is signal.default_int_handler:
+                signal.signal(signal.SIGINT, previous_int)
+
+    @contextmanager
+    def writing(self) -> Iterator[None]:
+        self._writing = True
+        try:
+            yield
+        finally:
+            self._writing = False
+        if self._pending is not None:
+            raise StopRequested(self._pending)
 
 
 def output_paths(prefix: Path, config: Config) -> RunOutputs:
@@ -186,23 +217,24 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     total = expected_frames(source, config)
     start = time.perf_counter()
     try:
-        with _sigterm_stops_run():
+        with _StopSignals().installed() as stop_signals:
             for frame in source.frames():
                 packet = FramePacket(frame=frame, camera=camera)
                 for name, stage in stages:
                     t0 = time.perf_counter()
                     packet = stage.process(packet)
                     packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
-                for name, sink in sinks:
-                    t0 = time.perf_counter()
-                    sink.write(packet)
-                    packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
-                for name, ms in packet.timings_ms.items():
-                    summary.stage_ms[name] += ms
-                summary.frames += 1
-                for track in packet.tracks:
-                    if track.confirmed:
-                        summary.confirmed_tracks[track.track_id] = (track.cls, track.height_m, track.height_std_m)
+                with stop_signals.writing():
+                    for name, sink in sinks:
+                        t0 = time.perf_counter()
+                        sink.write(packet)
+                        packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
+                    summary.frames += 1
+                    for name, ms in packet.timings_ms.items():
+                        summary.stage_ms[name] += ms
+                    for track in packet.tracks:
+                        if track.confirmed:
+                            summary.confirmed_tracks[track.track_id] = (track.cls, track.height_m, track.height_std_m)
                 progress.update(1)
                 progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
                 if on_frame is not None:
