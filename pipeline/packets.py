@@ -75,6 +75,11 @@ class Detection:
     height_noise_m: float = 0.15
     """Standard deviation the tracker should assume for height_m this frame."""
     touches_border: bool = False
+    """Some of the object's pixels lie at the edge of the image: it may continue outside."""
+    foot_cut: bool = False
+    """The object's bottom lies at the edge of the image: foot_xy is not its ground contact."""
+    top_cut: bool = False
+    """The object's top lies at the edge of the image: its heights are lower bounds."""
     geometry_height_m: float | None = None
     """Second measurement: height from foot and top points through the calibrated camera."""
     geometry_noise_m: float | None = None
@@ -115,6 +120,8 @@ class FramePacket:
     """H x W float32 metres above the ground."""
     foreground: np.ndarray | None = None
     """H x W bool: moving pixels from background subtraction."""
+    image_valid: np.ndarray | None = None
+    """H x W bool: pixels that carry image (undistortion leaves black corners); None = all."""
     matches: FeatureMatches | None = None
     detections: list[Detection] = field(default_factory=list)
     tracks: list[Track] = field(default_factory=list)

@@ -24,8 +24,6 @@ from stages.calibration import heights_from_foot_top, is_calibrated, undistort_p
 HORIZONTAL_EXTENT_M = {"person": 0.3, "cyclist": 1.2, "vehicle": 4.5, "other": 1.0}
 # Geometry heights outside this range are failures (foot near the horizon, top ray grazing).
 PLAUSIBLE_HEIGHT_M = (0.05, 30.0)
-# Points this close to the top or bottom image border may be cut off.
-BORDER_MARGIN_PX = 2.0
 
 
 class GeometryMeasurer:
@@ -55,8 +53,10 @@ class GeometryMeasurer:
     def measure(self, camera: CameraInfo, detections: list[Detection]) -> None:
         foot = np.array([d.foot_xy for d in detections], dtype=float)
         top = np.array([d.top_xy if d.top_xy is not None else (np.nan, np.nan) for d in detections])
-        foot_ok = foot[:, 1] < camera.height - BORDER_MARGIN_PX
-        top_ok = (top[:, 1] > BORDER_MARGIN_PX) & foot_ok
+        # A foot at the image's edge is not the object's ground contact; and of an object that the
+        # edge cuts anywhere, the lowest and highest visible points are not its foot and top.
+        foot_ok = np.array([not d.foot_cut for d in detections])
+        whole = np.array([not (d.foot_cut or d.top_cut or d.touches_border) for d in detections])
         foot = undistort_pixels(camera, foot)
         top = undistort_pixels(camera, top)
 
@@ -67,7 +67,7 @@ class GeometryMeasurer:
             if foot_ok[i] and np.all(np.isfinite(ground[i])):
                 detection.ground_xy_m = (float(ground[i, 0]), float(ground[i, 1]))
             height = heights[i]
-            if not (top_ok[i] and np.isfinite(height) and np.isfinite(noise[i])
+            if not (whole[i] and np.isfinite(height) and np.isfinite(noise[i])
                     and PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]):
                 continue
             extent = HORIZONTAL_EXTENT_M.get(detection.cls, HORIZONTAL_EXTENT_M["other"])

@@ -116,6 +116,8 @@ class ObjectExtractor:
         self.kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self.grow_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
         self._prev_height_map: np.ndarray | None = None
+        self._edge: tuple[object, tuple[int, int], np.ndarray] | None = None
+        """(the image_valid it was made from, frame size, edge mask): see ``_image_edge``."""
 
     def process(self, packet: FramePacket) -> FramePacket:
         image = packet.frame.image
@@ -147,8 +149,9 @@ class ObjectExtractor:
         candidate = candidate.astype(np.uint8)
         candidate = cv2.morphologyEx(candidate, cv2.MORPH_CLOSE, self.kernel)
         candidate = cv2.morphologyEx(candidate, cv2.MORPH_OPEN, self.kernel)
+        edge = self._image_edge(packet.image_valid, (src_w, src_h), scale)
         detections = self._blobs_to_detections(candidate, moving, work_heights, packet.height_map, scale,
-                                               (src_w, src_h))
+                                               edge)
         if packet.height_map is not None:
             self._add_consistency_noise(detections, packet)
         packet.detections = detections
@@ -179,6 +182,22 @@ class ObjectExtractor:
         self._reference += REFERENCE_RATE * (grey - self._reference)
         return small
 
+    def _image_edge(self, image_valid: np.ndarray | None, size: tuple[int, int], scale: float) -> np.ndarray:
+        """Pixels within one work pixel of where the image ends (frame border or undistortion's black).
+
+        An object reaching them may go on outside: its foot or top there is not a measurement.
+        Made once per run (the valid region does not change).
+        """
+        if self._edge is not None and self._edge[0] is image_valid and self._edge[1] == size:
+            return self._edge[2]
+        margin = int(np.ceil(1.0 / scale)) + 2
+        valid = np.ones((size[1], size[0]), np.uint8) if image_valid is None else image_valid.astype(np.uint8)
+        valid = np.pad(valid, 1)  # outside the frame is not image either
+        inner = cv2.erode(valid, cv2.getStructuringElement(cv2.MORPH_RECT, (2 * margin + 1, 2 * margin + 1)))
+        edge = ~inner[1:-1, 1:-1].astype(bool)
+        self._edge = (image_valid, size, edge)
+        return edge
+
     def _work_scale(self, src_w: int) -> float:
         if self.config.work_width <= 0 or self.config.work_width >= src_w:
             return 1.0
@@ -200,7 +219,7 @@ class ObjectExtractor:
     def _blobs_to_detections(self, candidate: np.ndarray, moving: np.ndarray | None,
                              work_heights: np.ndarray | None,
                              height_map: np.ndarray | None, scale: float,
-                             src_size: tuple[int, int]) -> list[Detection]:
+                             edge: np.ndarray) -> list[Detection]:
         count, labels, stats, _ = cv2.connectedComponentsWithStats(candidate, connectivity=8)
         min_area_work = self.config.min_area_px * scale * scale
         detections = []
@@ -217,13 +236,13 @@ class ObjectExtractor:
                 # but sparse: a moving object is mostly foreground itself.
                 if moving is not None and moving[y:y + h, x:x + w][piece].mean() < self.config.min_foreground_share:
                     continue
-                detection = self._piece_to_detection(piece, (x, y), height_map, scale, src_size)
+                detection = self._piece_to_detection(piece, (x, y), height_map, scale, edge)
                 if detection is not None:
                     detections.append(detection)
         return detections
 
     def _piece_to_detection(self, piece: np.ndarray, offset: tuple[int, int], height_map: np.ndarray | None,
-                            scale: float, src_size: tuple[int, int]) -> Detection | None:
+                            scale: float, edge: np.ndarray) -> Detection | None:
         rows, cols = np.nonzero(piece)
         if rows.size == 0:
             return None
@@ -231,12 +250,12 @@ class ObjectExtractor:
         w, h = cols.max() - cols.min() + 1, rows.max() - rows.min() + 1
         piece = piece[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
         # Box back in source pixels (pixel edges, not centres).
-        src_w, src_h = src_size
+        src_h, src_w = edge.shape
         x0, y0 = int(np.floor(x / scale)), int(np.floor(y / scale))
         x1 = min(src_w, int(np.ceil((x + w) / scale)))
         y1 = min(src_h, int(np.ceil((y + h) / scale)))
         mask = _resize_mask(piece, (x1 - x0, y1 - y0))
-        return self._measure(mask, height_map, (x0, y0, x1, y1), src_size)
+        return self._measure(mask, height_map, (x0, y0, x1, y1), edge[y0:y1, x0:x1] & mask, scale)
 
     def _add_consistency_noise(self, detections: list[Detection], packet: FramePacket) -> None:
         """Height consistency: points matched from the last frame keep their height on a rigid object.
@@ -265,19 +284,23 @@ class ObjectExtractor:
                 detection.height_noise_m = float(np.hypot(detection.height_noise_m,
                                                           self.config.consistency_gain * residual))
 
-    def _measure(self, mask: np.ndarray, height_map: np.ndarray | None,
-                 corners: tuple[int, int, int, int], src_size: tuple[int, int]) -> Detection | None:
+    def _measure(self, mask: np.ndarray, height_map: np.ndarray | None, corners: tuple[int, int, int, int],
+                 at_edge: np.ndarray, scale: float) -> Detection | None:
         x0, y0, x1, y1 = corners
         box_w, box_h = float(x1 - x0), float(y1 - y0)
-        src_w, src_h = src_size
-        touches_border = x0 <= 1 or y0 <= 1 or x1 >= src_w - 1 or y1 >= src_h - 1
+        # The object's first and last rows (one work pixel deep) reaching the image edge: top or foot cut.
+        band = int(np.ceil(1.0 / scale))
+        rows = np.flatnonzero(mask.any(axis=1))
+        top_cut = bool(rows.size and at_edge[rows[0]:rows[0] + band].any())
+        foot_cut = bool(rows.size and at_edge[max(rows[-1] + 1 - band, 0):rows[-1] + 1].any())
+        touches_border = bool(at_edge.any())
         height_m, noise_m = float("nan"), float("inf")
         if height_map is not None:
             height_m = robust_top(height_map[y0:y1, x0:x1], mask, self.config.height_percentile)
             if not (self.config.min_object_height_m <= height_m <= self.config.max_object_height_m):
                 return None
             noise_m = self._height_noise(height_m, box_h, touches_border)
-            if y0 <= 1:
+            if top_cut:
                 noise_m = float("inf")    # top cut off by the frame: a lower bound, not a height
         return Detection(
             box=(float(x0), float(y0), box_w, box_h),
@@ -287,6 +310,8 @@ class ObjectExtractor:
             top_xy=((x0 + x1) / 2.0, float(y0)),
             height_noise_m=noise_m,
             touches_border=touches_border,
+            foot_cut=foot_cut,
+            top_cut=top_cut,
             mask=mask,
         )
 

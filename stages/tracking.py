@@ -16,9 +16,10 @@ One frame, in order:
 5. A track seen again after a gap is re-updated along a straight virtual path from its last
    observation (OC-SORT's observation-centric re-update), so the velocity that drifted while
    it was hidden does not carry on.
-6. Height: the network's single-frame height (for walkers, the upper quantile of a short
-   window: stature, not the gait's mean dip) and, where the camera is calibrated, the geometry
-   height are fused into the height filter; outliers beyond ``height_gate_sigma`` are skipped.
+6. Height: the network's single-frame height and, where the camera is calibrated, the geometry
+   height are fused into the height filter (for walkers each channel goes through the upper
+   quantile of a short window: stature, not the gait's mean dip nor a blob that lost its feet
+   or head for a frame); outliers beyond ``height_gate_sigma`` are skipped.
 7. Tracks are confirmed after ``min_hits`` hits in a row and dropped after ``max_misses``
    frames without a hit; a tentative track is dropped at its first miss; of two tracks
    covering one object, the younger is dropped.
@@ -52,6 +53,9 @@ TOP_LOST_NOISE_FACTOR = 3.0
 DUPLICATE_IOU = 0.8
 # Gait correction applies to these classes.
 WALKER_CLASSES = ("person",)
+# A track not seen this frame whose predicted box has less than this share inside the image has
+# left the view: it is dropped instead of coasting on outside the frame.
+MIN_SHARE_IN_VIEW = 0.25
 # Classes whose geometry height only stands in when the network has none (see _update_height).
 GEOMETRY_ONLY_AS_FALLBACK = ("vehicle",)
 
@@ -64,6 +68,9 @@ class _TrackState:
     motion: MotionFilter
     height: HeightFilter | None
     stature: StatureWindow
+    """Recent network heights of a walker (see ``StatureWindow``)."""
+    geometry_stature: StatureWindow
+    """The same for its geometry heights."""
     hits: int = 1
     hit_streak: int = 1
     misses: int = 0
@@ -118,8 +125,12 @@ class ObjectTracker:
         self.tracks: list[_TrackState] = []
         self._next_id = 1
 
-    def update(self, detections: list[Detection], matches: FeatureMatches | None = None) -> list[Track]:
-        """Advance every track by one frame and fold in this frame's detections."""
+    def update(self, detections: list[Detection], matches: FeatureMatches | None = None,
+               frame_size: tuple[int, int] | None = None) -> list[Track]:
+        """Advance every track by one frame and fold in this frame's detections.
+
+        ``frame_size`` (width, height): tracks that coast out of the image are dropped.
+        """
         if matches is not None:
             self._compensate_camera_motion(np.asarray(matches.camera_motion, dtype=float))
         for track in self.tracks:
@@ -139,7 +150,9 @@ class ObjectTracker:
             self._apply_detection(self.tracks[row], detections[col])
         for row in leftover_tracks[1]:
             self._miss(self.tracks[row])
-        self.tracks = [t for t in self.tracks if self._alive(t)]
+        self.tracks = [t for t in self.tracks if self._alive(t) and (t.updated or frame_size is None
+                                                                     or _share_in_view(t.motion.box, frame_size)
+                                                                     >= MIN_SHARE_IN_VIEW)]
         for col in leftover_detections[1]:
             self._start_track(detections[col])
         self._remove_duplicates()
@@ -299,8 +312,11 @@ class ObjectTracker:
         # ~0.8 m high (median): used for them only when the network gives no height at all.
         geometry_trusted = track.cls not in GEOMETRY_ONLY_AS_FALLBACK or not channels
         if geometry_trusted and _usable(detection.geometry_height_m, detection.geometry_noise_m):
+            height = detection.geometry_height_m
             noise = detection.geometry_noise_m * (TOP_LOST_NOISE_FACTOR if top_lost else 1.0)
-            channels.append(("geometry", detection.geometry_height_m, noise))
+            if self.config.stature_window > 0 and track.cls in WALKER_CLASSES:
+                height = track.geometry_stature.add(height, noise)
+            channels.append(("geometry", height, noise))
         for channel, height, noise in channels:
             if track.height is None:
                 track.height = self.filters.create_height_filter(height, noise, channel)
@@ -321,6 +337,7 @@ class ObjectTracker:
             motion=self.filters.create_motion_filter(detection.box),
             height=None,
             stature=StatureWindow(self.config.stature_window, self.config.stature_quantile),
+            geometry_stature=StatureWindow(self.config.stature_window, self.config.stature_quantile),
             class_votes=Counter({detection.cls: 1}),
             ground_xy_m=detection.ground_xy_m,
             last_observation=detection.box,
@@ -336,6 +353,15 @@ class ObjectTracker:
 def _usable(height_m: float | None, noise_m: float | None) -> bool:
     return (height_m is not None and noise_m is not None
             and bool(np.isfinite(height_m)) and bool(np.isfinite(noise_m)) and noise_m > 0)
+
+
+def _share_in_view(box, frame_size: tuple[int, int]) -> float:
+    x, y, w, h = box
+    if w <= 0 or h <= 0:
+        return 0.0
+    inside_w = max(0.0, min(x + w, frame_size[0]) - max(x, 0.0))
+    inside_h = max(0.0, min(y + h, frame_size[1]) - max(y, 0.0))
+    return inside_w * inside_h / (w * h)
 
 
 def _top_lost(predicted_box, box) -> bool:
@@ -359,5 +385,6 @@ class TrackingStage:
         self.tracker = ObjectTracker(config)
 
     def process(self, packet: FramePacket) -> FramePacket:
-        packet.tracks = self.tracker.update(packet.detections, packet.matches)
+        height, width = packet.frame.image.shape[:2]
+        packet.tracks = self.tracker.update(packet.detections, packet.matches, frame_size=(width, height))
         return packet

@@ -37,6 +37,10 @@ class Undistorter:
             camera.K, np.asarray(camera.dist, float), None, camera.K, self.size, cv2.CV_16SC2)
         self.camera = dataclasses.replace(camera, dist=None)
         """The camera of the undistorted frames."""
+        white = np.full((self.size[1], self.size[0]), 255, np.uint8)
+        filled = cv2.remap(white, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        self.image_valid = filled == 255
+        """Pixels of the undistorted frame that come from the raw frame (not the black border)."""
 
     def process(self, packet: FramePacket) -> FramePacket:
         image = packet.frame.image
@@ -46,4 +50,5 @@ class Undistorter:
         packet.frame.image = cv2.remap(image, self.map_x, self.map_y, cv2.INTER_LINEAR,
                                        borderMode=cv2.BORDER_CONSTANT)
         packet.camera = self.camera
+        packet.image_valid = self.image_valid
         return packet

@@ -38,8 +38,11 @@ def detection(foot, top, cls="person") -> Detection:
 def oxford_detections() -> tuple[list[Detection], list[dict]]:
     with open(OXFORD / "gt_with_geometry.csv") as f:
         rows = list(csv.DictReader(f))
-    return [detection((float(r["foot_u"]), float(r["foot_v"])), (float(r["headtop_u"]), float(r["headtop_v"])))
-            for r in rows], rows
+    detections = [detection((float(r["foot_u"]), float(r["foot_v"])), (float(r["headtop_u"]), float(r["headtop_v"])))
+                  for r in rows]
+    for d, r in zip(detections, rows):
+        d.foot_cut = r["foot_inside_image"] != "1"   # what the extractor flags: the foot is not in the image
+    return detections, rows
 
 
 # --------------------------------------------------------------------------- Oxford (real)
@@ -50,8 +53,8 @@ def test_oxford_annotations_give_the_annotated_heights_and_ground_points():
     detections, rows = oxford_detections()
     GeometryMeasurer(CameraConfig()).process(packet_with(camera, detections))
     measured = [(d, r) for d, r in zip(detections, rows) if d.geometry_height_m is not None]
-    # Rows whose foot lies on or below the frame's bottom edge have no measurement.
-    assert all(float(r["foot_v"]) < 1078 for _, r in measured)
+    # Rows whose foot is cut by the frame's edge have no measurement.
+    assert all(r["foot_inside_image"] == "1" for _, r in measured)
     assert len(measured) >= 0.95 * sum(r["foot_inside_image"] == "1" for r in rows)
     errors = np.array([d.geometry_height_m - float(r["height_headtop_m"]) for d, r in measured])
     assert np.abs(errors).max() < 1e-3
@@ -127,8 +130,8 @@ def test_uncalibrated_camera_gets_no_geometry():
 
 def test_points_cut_by_the_border_are_not_measured():
     camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 5.0, 30.0)
-    foot_cut = detection((320, 479.5), (320, 380))
-    top_cut = detection((320, 300), (320, 0.5))
+    foot_cut = dataclasses.replace(detection((320, 479.5), (320, 380)), foot_cut=True)
+    top_cut = dataclasses.replace(detection((320, 300), (320, 0.5)), top_cut=True)
     whole = detection((320, 300), (320, 200))
     GeometryMeasurer(CameraConfig()).process(packet_with(camera, [foot_cut, top_cut, whole]))
     assert foot_cut.ground_xy_m is None and foot_cut.geometry_height_m is None

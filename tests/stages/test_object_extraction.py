@@ -76,6 +76,37 @@ def test_moving_person_becomes_one_detection_with_its_height():
     assert packet.foreground.shape == (HEIGHT, WIDTH)
 
 
+def test_an_object_reaching_the_bottom_edge_has_its_foot_cut():
+    walker_at_bottom = [[]] * 5 + [[(100 + 6 * i, HEIGHT - 100, 40, 100, 1.75)] for i in range(10)]
+    detection = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walker_at_bottom).detections[0]
+    assert detection.touches_border and detection.foot_cut and not detection.top_cut
+    assert np.isfinite(detection.height_noise_m)     # the network still sees its top
+
+
+def test_an_object_reaching_the_top_edge_has_no_usable_height():
+    walker_at_top = [[]] * 5 + [[(100 + 6 * i, 0, 40, 100, 1.75)] for i in range(10)]
+    detection = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walker_at_top).detections[0]
+    assert detection.top_cut and not detection.foot_cut and detection.height_noise_m == np.inf
+
+
+def test_the_black_border_of_an_undistorted_frame_cuts_like_the_frame_edge():
+    """Undistortion leaves black corners: an object whose feet reach them is cut there."""
+    valid = np.ones((HEIGHT, WIDTH), bool)
+    valid[260:, :300] = False                        # the black region: below row 260, left of column 300
+    walk = _walk(10, start_x=100, speed=6)           # feet at row 270, x 100..194: inside the black region
+    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    for index, people in enumerate(walk):
+        image, heights, ground = _scene(index, people)
+        packet = _packet(index, image, heights, ground)
+        packet.image_valid = valid
+        packet = extractor.process(packet)
+    cut = packet.detections[0]
+    assert cut.foot_cut and cut.touches_border
+    # The same walk with the whole frame valid: nothing is cut.
+    whole = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walk).detections[0]
+    assert not (whole.foot_cut or whole.top_cut or whole.touches_border)
+
+
 def test_two_people_apart_are_two_detections():
     frames = [[(60 + 5 * i, 150, 40, 120, 1.6), (400 - 5 * i, 180, 40, 110, 1.9)] for i in range(12)]
     packet = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), frames)

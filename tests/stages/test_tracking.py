@@ -89,6 +89,23 @@ def test_births_after_min_hits_and_deaths_after_max_misses():
     assert confirmed_counts[14] == 1 and live_counts[15] == 0
 
 
+def test_a_track_that_walks_out_of_the_frame_is_dropped_not_coasted():
+    tracker = ObjectTracker(TrackingConfig(min_hits=3, max_misses=30))
+    frame_size = (320, 240)
+    # Walks right at 10 px/frame, last seen with its box at x 290..320 (the right edge).
+    for frame in range(10):
+        tracks = tracker.update([_detection(200 + 10 * frame, 100, 1.7)], frame_size=frame_size)
+    assert len(tracks) == 1 and tracks[0].confirmed
+    lives = [len(tracker.update([], frame_size=frame_size)) for _ in range(5)]
+    assert lives[0] == 1          # predicted box still mostly inside: kept for a re-detection
+    assert lives[-1] == 0         # predicted outside the image: gone long before max_misses
+    # Without a frame size (the old behaviour) the same track coasts on.
+    blind = ObjectTracker(TrackingConfig(min_hits=3, max_misses=30))
+    for frame in range(10):
+        blind.update([_detection(200 + 10 * frame, 100, 1.7)])
+    assert [len(blind.update([])) for _ in range(5)] == [1] * 5
+
+
 def test_missing_heights_do_not_crash_or_poison_the_state():
     tracker = ObjectTracker(TrackingConfig())
     tracks = tracker.update([_detection(10, 10, float("nan"), noise_m=float("inf"))])
