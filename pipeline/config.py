@@ -80,6 +80,10 @@ class TrackingConfig:
     """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
     work_width: int = 320
     """Background subtraction and blob finding run at this width in pixels (0 = source width)."""
+    background_prime_frames: int = 30
+    """Frames sampled from the start of a file whose median seeds the background model (0 = off)."""
+    background_prime_s: float = 30.0
+    """The sample is spread over this many seconds from the start (or the whole clip if shorter)."""
     height_percentile: float = 100.0
     """Single-frame height = this percentile of the height map inside the blob (robust top)."""
     min_area_px: int = 40

@@ -202,13 +202,18 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
     import cv2
 
     from pipeline.packets import Frame, FramePacket
+    from pipeline.runner import prime_background
+    from stages.capture import evenly_spaced
 
     meta = sequence.meta
     run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
     camera = camera_info(sequence)
     stages = build_eval_stages(sequence, config, heights, geometry)
-    sink = _open_recording(record, config, sequence.name) if record else None
     count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
+    span = min(len(sequence), max(1, int(config.tracking.background_prime_s * meta.fps)))
+    prime_background(stages, [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
+                              for i in evenly_spaced(span, config.tracking.background_prime_frames)])
+    sink = _open_recording(record, config, sequence.name) if record else None
     start = time.perf_counter()
     try:
         for index in range(count):

@@ -1,7 +1,8 @@
 """The pipeline, in the order the README lists it.
 
-open the source → for each frame: ground segmentation → height inference → feature
-matching → object extraction → (geometry) → tracking → sinks → close the sinks.
+open the source → seed the background model from frames read ahead (files only) → for each
+frame: (undistortion) → ground segmentation → height inference → feature matching → object
+extraction → (geometry) → tracking → sinks → close the sinks.
 
 Sinks are closed whatever happens (end of video, Ctrl-C, SIGTERM, an exception), so a
 stopped run still leaves a readable MCAP, .rrd and CSV of everything processed.
@@ -145,6 +146,18 @@ def build_stages(config: Config, camera: CameraInfo) -> list[tuple[str, object]]
     return stages
 
 
+def prime_background(stages: list[tuple[str, object]], images: list) -> None:
+    """Seed the object extractor's background model from frames read ahead (undistorted first)."""
+    from stages.object_extraction import ObjectExtractor
+    from stages.undistortion import Undistorter
+
+    for _, stage in stages:
+        if isinstance(stage, Undistorter):
+            images = [stage.undistort(image) for image in images]
+        if isinstance(stage, ObjectExtractor):
+            stage.prime_background(images)
+
+
 def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> list[tuple[str, object]]:
     """The sinks of this run; if one cannot be opened, those already open are closed first."""
     from stages.sink_common import FrameEncoder
@@ -209,6 +222,9 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     summary.camera_source = camera.source
     try:
         stages = build_stages(config, camera)
+        tracking = config.tracking
+        prime_background(stages, source.background_sample(tracking.background_prime_frames,
+                                                           tracking.background_prime_s))
         sinks = build_sinks(outputs, config, prefix.name)
     except BaseException:
         source.close()

@@ -87,8 +87,23 @@ class FrameSource:
         """Yield (source index, time in s, image, or SKIPPED for stride, or FAILED)."""
         raise NotImplementedError
 
+    def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
+        """Up to ``count`` frames spread over the first ``span_s`` seconds, read ahead of the run.
+
+        Only sources that can be read twice (files, image folders) have one; a live stream
+        returns none and its background model starts from its first frames.
+        """
+        return []
+
     def close(self) -> None:
         pass
+
+
+def evenly_spaced(total: int, count: int) -> list[int]:
+    """Up to ``count`` distinct indices spread evenly over range(total), first and last included."""
+    if total <= 0 or count <= 0:
+        return []
+    return sorted({int(round(i)) for i in np.linspace(0, total - 1, min(count, total))})
 
 
 def _ensure_bgr(image: np.ndarray) -> np.ndarray:
@@ -103,6 +118,7 @@ class VideoFileSource(FrameSource):
     def __init__(self, path: Path, config: CaptureConfig):
         super().__init__(config)
         self.description = str(path)
+        self.path = path
         if not path.exists():
             raise SourceError(f"no such file: {path}")
         if path.is_dir():
@@ -155,6 +171,26 @@ class VideoFileSource(FrameSource):
                 return
             yield index, 0.0, FAILED
 
+    def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
+        total = self.stats.expected or 0
+        if count <= 0 or total <= 0:
+            return []
+        span = min(total, max(1, int(span_s * (self.fps or 25.0))))
+        wanted = set(evenly_spaced(span, count))
+        capture = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)  # a second reader: the run's is untouched
+        images = []
+        try:
+            for index in range(max(wanted) + 1):
+                if not capture.grab():
+                    break
+                if index in wanted:
+                    ok, image = capture.retrieve()
+                    if ok and image is not None:
+                        images.append(_ensure_bgr(image))
+        finally:
+            capture.release()
+        return images
+
     def close(self) -> None:
         self.capture.release()
 
@@ -180,6 +216,11 @@ class ImageFolderSource(FrameSource):
                 continue
             image = cv2.imread(str(path), cv2.IMREAD_COLOR)
             yield index, index / self.fps, FAILED if image is None else image
+
+    def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
+        span = min(len(self.paths), max(1, int(span_s * self.fps)))
+        images = [cv2.imread(str(self.paths[i]), cv2.IMREAD_COLOR) for i in evenly_spaced(span, count)]
+        return [image for image in images if image is not None]
 
 
 Opener = Callable[[str], cv2.VideoCapture]

@@ -49,6 +49,11 @@ EXPOSURE_BINS = 100
 EXPOSURE_RANGE = (-1.0, 1.0)
 EXPOSURE_TOLERANCE = 0.1
 REFERENCE_RATE = 0.05  # running mean of the scene that the gain is measured against
+# A blob whose bottom tenth stands higher than this share of its top has no visible foot
+# (Oxford, step-4,400 model: whole people 0.16-0.28, blobs missing their legs 0.22-0.49).
+FOOT_MAX_SHARE = 0.4
+# Times the median background is fed to a fresh subtractor: enough to fill KNN's sample sets.
+PRIME_REPEATS = 50
 # Matched points an object needs for a height-consistency residual.
 MIN_CONSISTENCY_POINTS = 3
 
@@ -157,6 +162,27 @@ class ObjectExtractor:
         packet.detections = detections
         self._prev_height_map = packet.height_map
         return packet
+
+    def prime_background(self, images: list[np.ndarray]) -> None:
+        """Seed the background model with the per-pixel median of frames spread over the clip's start.
+
+        A background model learnt from the first frame holds everyone standing in it: when they
+        walk off, the spot they leave is "foreground" (a ghost) for hundreds of frames, and a
+        ghost over a bench or a bin is above ground, so it becomes an object with a height.
+        The median of frames seconds apart shows the empty scene instead. Images are in the
+        run's frame geometry (undistorted where the run undistorts).
+        """
+        if self.subtractor is None or not images:
+            return
+        src_w = images[0].shape[1]
+        scale = self._work_scale(src_w)
+        size = (max(1, round(src_w * scale)), max(1, round(images[0].shape[0] * scale)))
+        small = [cv2.resize(image, size, interpolation=cv2.INTER_AREA) if scale != 1.0 else image
+                 for image in images if image.shape[:2] == images[0].shape[:2]]
+        background = np.median(np.stack(small), axis=0).astype(np.uint8)
+        for _ in range(PRIME_REPEATS):
+            self.subtractor.apply(background)
+        self._reference = background.astype(np.float32).mean(axis=2) + 4.0
 
     def _compensate_exposure(self, small: np.ndarray) -> np.ndarray:
         """Undo a global brightness change (auto exposure, a cloud) before background subtraction.
@@ -300,6 +326,7 @@ class ObjectExtractor:
             if not (self.config.min_object_height_m <= height_m <= self.config.max_object_height_m):
                 return None
             noise_m = self._height_noise(height_m, box_h, touches_border)
+            foot_cut = foot_cut or _foot_above_ground(height_map[y0:y1, x0:x1], mask, rows, height_m)
             if top_cut:
                 noise_m = float("inf")    # top cut off by the frame: a lower bound, not a height
         return Detection(
@@ -322,6 +349,23 @@ class ObjectExtractor:
         if touches_border:
             noise *= 3.0              # the top or the foot may be outside the image
         return noise
+
+
+def _foot_above_ground(heights: np.ndarray, mask: np.ndarray, rows: np.ndarray, top_m: float) -> bool:
+    """The blob's bottom stands well above the ground: its feet are hidden or not foreground.
+
+    A blob of only a head and shoulders (a dark coat the background model missed, a person
+    behind a bench) ends where the object does not touch the ground; its lowest point is no
+    foot for the geometry. Checked on the height map: the bottom tenth of the blob must be
+    lower than ``FOOT_MAX_SHARE`` of the object's top.
+    """
+    if rows.size == 0 or not np.isfinite(top_m) or top_m <= 0:
+        return False
+    band = mask.copy()
+    band[:max(rows[-1] + 1 - max(1, int(0.1 * (rows[-1] - rows[0] + 1))), 0)] = False
+    values = heights[band]
+    values = values[np.isfinite(values)]
+    return bool(values.size and np.median(values) > FOOT_MAX_SHARE * top_m)
 
 
 def robust_top(heights: np.ndarray, mask: np.ndarray, percentile: float) -> float:

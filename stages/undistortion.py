@@ -42,13 +42,15 @@ class Undistorter:
         self.image_valid = filled == 255
         """Pixels of the undistorted frame that come from the raw frame (not the black border)."""
 
+    def undistort(self, image: np.ndarray) -> np.ndarray:
+        return cv2.remap(image, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
     def process(self, packet: FramePacket) -> FramePacket:
         image = packet.frame.image
         if (image.shape[1], image.shape[0]) != self.size:
             raise SourceError(f"frame {packet.frame.index} is {image.shape[1]}x{image.shape[0]}, "
                               f"the calibration is for {self.size[0]}x{self.size[1]}")
-        packet.frame.image = cv2.remap(image, self.map_x, self.map_y, cv2.INTER_LINEAR,
-                                       borderMode=cv2.BORDER_CONSTANT)
+        packet.frame.image = self.undistort(image)
         packet.camera = self.camera
         packet.image_valid = self.image_valid
         return packet

@@ -14,7 +14,6 @@ import pytest
 
 from media import REPO_ROOT, make_tiny_height_model, write_moving_box_video
 
-SAMPLE_CLIP = REPO_ROOT / "recordings" / "sample.mp4"
 from pipeline.config import Config
 
 CLIP_FRAMES = [20, 25, 30, 35, 40, 45]
@@ -46,29 +45,15 @@ def model(tmp_path_factory) -> Path:
     return make_tiny_height_model(tmp_path_factory.mktemp("model") / "tiny.onnx")
 
 
-def write_generator_clip(path: Path, start: int, frames: int) -> None:
-    """A piece of the generator-rendered sample clip, at half size to keep the test fast."""
-    import cv2
-
-    capture = cv2.VideoCapture(str(SAMPLE_CLIP))
-    capture.set(cv2.CAP_PROP_POS_FRAMES, start)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 15.0, (320, 180))
-    for _ in range(frames):
-        ok, image = capture.read()
-        assert ok, f"{SAMPLE_CLIP} has fewer than {start + frames} frames"
-        writer.write(cv2.resize(image, (320, 180), interpolation=cv2.INTER_AREA))
-    writer.release()
-    capture.release()
-
-
 @pytest.fixture(scope="module")
 def archive(tmp_path_factory) -> Path:
-    """Six short generator clips (two share the stem 'clip0' in different folders) and a corrupt file."""
+    """Six short clips of a box crossing the view (two share the stem 'clip0' in different folders)
+    and a corrupt file. The box is what the tiny model sees as an object."""
     root = tmp_path_factory.mktemp("archive")
     for i, frames in enumerate(CLIP_FRAMES):
         folder = root / ("cam_a" if i < 3 else "cam_b")
         folder.mkdir(exist_ok=True)
-        write_generator_clip(folder / f"clip{i % 3}.mp4", start=20 * i, frames=frames)
+        write_moving_box_video(folder / f"clip{i % 3}.mp4", frames=frames, fps=15.0)
     (root / "cam_b" / "broken.mp4").write_text("not a video\n" * 50)
     (root / "cam_b" / "notes.txt").write_text("a folder's non-video files are not inputs\n")
     return root

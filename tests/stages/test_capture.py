@@ -9,7 +9,7 @@ import pytest
 from media import SHARED_REAL, write_truncated_avi
 from pipeline.config import CaptureConfig
 from pipeline.errors import SourceError
-from stages.capture import StreamSource, open_source
+from stages.capture import StreamSource, evenly_spaced, open_source
 
 TRAFFIC = SHARED_REAL / "traffic_bridge" / "car_traffic_small.mp4"
 
@@ -27,6 +27,24 @@ def test_stride_keeps_source_indices_and_times(box_video):
     frames = list(source.frames())
     assert [f.index for f in frames] == [0, 4, 8, 12, 16]
     assert frames[2].time_s == pytest.approx(0.8, abs=1e-3)
+
+
+def test_background_sample_reads_ahead_without_disturbing_the_run(box_video):
+    """Frames spread over the clip's first seconds (box video: 30 frames at 10 fps)."""
+    source = open_source(str(box_video), CaptureConfig())
+    sample = source.background_sample(5, span_s=2.0)              # over frames 0..19
+    assert len(sample) == 5 and sample[0].shape == (120, 160, 3)
+    reference = [f.image for f in open_source(str(box_video), CaptureConfig()).frames()]
+    for image, index in zip(sample, evenly_spaced(20, 5)):
+        assert np.abs(image.astype(int) - reference[index]).mean() < 1.0
+    assert len(list(source.frames())) == 30                      # the run's own reader starts at frame 0
+    assert source.background_sample(0, span_s=2.0) == []
+
+
+def test_evenly_spaced():
+    assert evenly_spaced(20, 5) == [0, 5, 10, 14, 19]
+    assert evenly_spaced(3, 10) == [0, 1, 2]
+    assert evenly_spaced(0, 4) == [] and evenly_spaced(9, 0) == []
 
 
 @pytest.mark.skipif(not TRAFFIC.exists(), reason="shared real clips not present")

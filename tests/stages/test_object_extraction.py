@@ -107,6 +107,47 @@ def test_the_black_border_of_an_undistorted_frame_cuts_like_the_frame_edge():
     assert not (whole.foot_cut or whole.top_cut or whole.touches_border)
 
 
+def test_a_primed_background_leaves_no_ghost_where_someone_stood_at_the_start():
+    """A walker standing in front of a bench in the first frame leaves a ghost in a model learnt
+    from that frame, and the bench makes the ghost "above ground": an object."""
+    walk = [[(100 + 8 * i, 150, 40, 120, 1.75)] for i in range(30)]   # from x=100 to x=332
+
+    def frame(index):
+        image, heights, ground = _scene(index, walk[index])
+        bench = heights[150:270, 90:150]
+        np.maximum(bench, 0.8, out=bench)                  # static, above ground, behind the walker
+        return image, heights, heights < 0.1
+
+    def ghosts(extractor):
+        """Detections in frames 0-9 that lie mostly off the walker's true box."""
+        found = []
+        for index in range(10):
+            x, y, w, h, _ = walk[index][0]
+            for d in extractor.process(_packet(index, *frame(index))).detections:
+                overlap = max(0.0, min(d.box[0] + d.box[2], x + w) - max(d.box[0], x))
+                if overlap < 0.5 * d.box[2]:
+                    found.append((index, d.box))
+        return found
+
+    assert ghosts(ObjectExtractor(TrackingConfig(), GroundConfig()))
+    primed = ObjectExtractor(TrackingConfig(), GroundConfig())
+    primed.prime_background([frame(index)[0] for index in range(0, 30, 3)])
+    assert ghosts(primed) == []
+
+
+def test_a_blob_whose_bottom_stands_above_the_ground_has_no_foot():
+    """Only a head and shoulders moved (the legs are hidden): its lowest point is not a foot."""
+    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    frames = [[(100 + 6 * i, 150, 40, 120, 1.75)] for i in range(12)]
+    for index, people in enumerate(frames):
+        image, heights, ground = _scene(index, people)
+        heights[150 + 50:150 + 120] = 0.0                  # legs: ground-level heights (not an object) ...
+        image[150 + 50:150 + 120] = _background()[150 + 50:150 + 120]  # ... and background colour
+        packet = extractor.process(_packet(index, image, heights, heights < 0.1))
+    detection = packet.detections[0]
+    assert detection.box[3] == pytest.approx(50, abs=6) and detection.foot_cut and not detection.touches_border
+
+
 def test_two_people_apart_are_two_detections():
     frames = [[(60 + 5 * i, 150, 40, 120, 1.6), (400 - 5 * i, 180, 40, 110, 1.9)] for i in range(12)]
     packet = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), frames)
