@@ -34,10 +34,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace, config) -> int:
     from tqdm import tqdm
 
-    from pipeline.errors import ConfigError
+    from pipeline.errors import ConfigError, HeightpipeError
     from pipeline.packets import FramePacket
     from pipeline.run_command import apply_flags
-    from stages.calibration import camera_for_run, has_distortion
+    from pipeline.runner import prime_background
+    from stages.calibration import ASSUMED_CAMERA_HEIGHT_M, camera_for_run, has_distortion
+    from stages.ground_segmentation import GroundSegmenter
+    from stages.height_inference import HeightEstimator
+    from stages.heightnet_model import HeightNetModel
     from stages.capture import open_source
     from stages.object_extraction import ObjectExtractor
     from stages.self_calibration import HeadFootCollector, HeightPrior, self_calibrate
@@ -57,13 +61,20 @@ def main(args: argparse.Namespace, config) -> int:
                                             self_calibrated=False)
     try:
         camera = camera_for_run(intrinsics_config, width, height)
-    except ConfigError:
+        # A calibration file's pose is dropped too; the network's scale-free heights are taken
+        # at an assumed camera height: they only tell what stands above the ground.
+        camera = dataclasses.replace(camera, R=None, t=None, height_m=ASSUMED_CAMERA_HEIGHT_M, source="none")
+        model = HeightNetModel(config.height.model, config.height.threads)
+    except HeightpipeError:
         source.close()
         raise
     stages = []
     if has_distortion(camera):
         stages.append(Undistorter(camera))
-    stages += [ObjectExtractor(config.tracking, config.ground), TrackingStage(config.tracking)]
+    stages += [GroundSegmenter(config.ground, model), HeightEstimator(model),
+               ObjectExtractor(config.tracking, config.ground), TrackingStage(config.tracking)]
+    prime_background(stages, source.background_sample(config.tracking.background_prime_frames,
+                                                       config.tracking.background_prime_s))
     collector = HeadFootCollector(width, height)
     progress = tqdm(total=source.stats.expected, unit="frame", disable=args.no_progress or not config.output.progress,
                     desc="collecting people", dynamic_ncols=True, file=sys.stderr)

@@ -146,12 +146,12 @@ def build_stages(config: Config, camera: CameraInfo) -> list[tuple[str, object]]
     return stages
 
 
-def prime_background(stages: list[tuple[str, object]], images: list) -> None:
+def prime_background(stages: list[object], images: list) -> None:
     """Seed the object extractor's background model from frames read ahead (undistorted first)."""
     from stages.object_extraction import ObjectExtractor
     from stages.undistortion import Undistorter
 
-    for _, stage in stages:
+    for stage in stages:
         if isinstance(stage, Undistorter):
             images = [stage.undistort(image) for image in images]
         if isinstance(stage, ObjectExtractor):
@@ -223,7 +223,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     try:
         stages = build_stages(config, camera)
         tracking = config.tracking
-        prime_background(stages, source.background_sample(tracking.background_prime_frames,
+        prime_background([stage for _, stage in stages], source.background_sample(tracking.background_prime_frames,
                                                            tracking.background_prime_s))
         sinks = build_sinks(outputs, config, prefix.name)
     except BaseException:
