@@ -138,6 +138,8 @@ class CameraConfig:
     """height_m/pitch_deg/roll_deg came from `heightpipe calibrate`: heights are flagged as such."""
     point_noise_px: float = 2.0
     """Standard deviation of detected foot/top points, for the geometry height's noise."""
+    rescale_network: bool = True
+    """Calibrated cameras: scale the network's heights by its median ratio to the geometry's on people."""
 
 
 @dataclass

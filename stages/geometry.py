@@ -1,5 +1,10 @@
 """Geometry measurement: each detection's height and ground position through the calibrated camera.
 
+It also checks the network's scale: on whole people, the median ratio of geometry to network
+height over the run so far says how far the network reads off in this scene (the shipped model
+reads about 0.7x on real footage), and every network height is multiplied by it, so objects
+that only the network can measure (cut by the frame's edge) get the corrected scale too.
+
 A second height measurement, independent of the network: the foot point's ray meets the ground
 plane, and the top point's ray passes the vertical through that ground point at the object's
 height (:func:`stages.calibration.heights_from_foot_top`). The tracker fuses it with the
@@ -10,6 +15,8 @@ the error of assuming the top is above the foot.
 
 from __future__ import annotations
 
+
+from collections import deque
 
 import numpy as np
 
@@ -22,6 +29,9 @@ from stages.calibration import heights_from_foot_top, is_calibrated, undistort_p
 # person that holds to a few centimetres, for a car seen from above the top of the blob is the far
 # edge of the roof, metres behind the front bumper, and the height comes out too large.
 HORIZONTAL_EXTENT_M = {"person": 0.3, "cyclist": 1.2, "vehicle": 4.5, "other": 1.0}
+# Network scale: ratios from this many whole-person detections at least, the last this many kept.
+SCALE_MIN_SAMPLES = 30
+SCALE_WINDOW = 1000
 # Geometry heights outside this range are failures (foot near the horizon, top ray grazing).
 PLAUSIBLE_HEIGHT_M = (0.05, 30.0)
 
@@ -42,12 +52,15 @@ class GeometryMeasurer:
     def __init__(self, config: CameraConfig):
         self.point_noise_px = config.point_noise_px
         self.camera_height_std_m = config.height_std_m
+        self.network_scale = NetworkScale() if config.rescale_network else None
 
     def process(self, packet: FramePacket) -> FramePacket:
         camera = packet.camera
         usable = [d for d in packet.detections if d.foot_xy is not None]
         if is_calibrated(camera) and usable:
             self.measure(camera, usable)
+            if self.network_scale is not None:
+                self.network_scale.rescale(packet.detections)
         return packet
 
     def measure(self, camera: CameraInfo, detections: list[Detection]) -> None:
@@ -101,3 +114,32 @@ class GeometryMeasurer:
             return float("inf")
         drop = max(camera_height_m - height_m, 0.0)
         return 0.5 * drop * extent_m / (distance_m + extent_m)
+
+
+class NetworkScale:
+    """Running median of geometry / network height on whole people; rescales network heights.
+
+    Only people: their top is above their foot, so their geometry height is sound; a vehicle's
+    is not (see ``HORIZONTAL_EXTENT_M``). Nothing changes until ``SCALE_MIN_SAMPLES`` ratios are in.
+    """
+
+    def __init__(self):
+        self.log_ratios: deque[float] = deque(maxlen=SCALE_WINDOW)
+
+    @property
+    def scale(self) -> float:
+        if len(self.log_ratios) < SCALE_MIN_SAMPLES:
+            return 1.0
+        return float(np.exp(np.median(self.log_ratios)))
+
+    def rescale(self, detections: list[Detection]) -> None:
+        for d in detections:
+            if (d.cls == "person" and d.geometry_height_m is not None and np.isfinite(d.height_m)
+                    and d.height_m > 0):
+                self.log_ratios.append(float(np.log(d.geometry_height_m / d.height_m)))
+        scale = self.scale
+        if scale == 1.0:
+            return
+        for d in detections:
+            d.height_m *= scale
+            d.height_noise_m *= scale

@@ -15,7 +15,7 @@ from pipeline.errors import SourceError
 from pipeline.packets import CameraInfo, Detection, Frame, FramePacket
 from stages.calibration import (camera_for_run, camera_from_pose, heights_from_foot_top, intrinsics_from_fov,
                                 load_calibration, project_points, undistort_pixels)
-from stages.geometry import GeometryMeasurer
+from stages.geometry import SCALE_MIN_SAMPLES, GeometryMeasurer
 from stages.undistortion import Undistorter
 
 SHARED_REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real"
@@ -244,3 +244,37 @@ def test_generator_frames_heights_and_ground_positions(synth_sequence):
     assert np.median(ground) < 0.4 and ground.max() < 0.8
     for d, truth in others:                                       # vehicles: biased high, but within noise
         assert abs(d.geometry_height_m - truth.height_m) < 3 * d.geometry_noise_m
+
+
+def _person_read_low(camera: CameraInfo, x_m: float, y_m: float, height_m: float, share: float) -> Detection:
+    """A person with exact foot and top points whose network height reads ``share`` of the truth."""
+    d = _person_at(camera, x_m, y_m, height_m)
+    d.height_m, d.height_noise_m = share * height_m, 0.15
+    return d
+
+
+def test_network_heights_are_rescaled_by_their_ratio_to_geometry_on_people():
+    camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 6.0, 25.0)
+    measurer = GeometryMeasurer(CameraConfig())
+    rng = np.random.default_rng(0)
+    for frame in range(SCALE_MIN_SAMPLES + 5):
+        people = [_person_read_low(camera, rng.uniform(-3, 3), rng.uniform(10, 20), rng.uniform(1.6, 1.9), 0.7)]
+        # A cut person: no geometry, only the network sees it; and a vehicle, which never feeds the scale.
+        cut = dataclasses.replace(_person_read_low(camera, 0.0, 15.0, 1.8, 0.7), foot_cut=True)
+        car = _person_read_low(camera, 2.0, 12.0, 1.5, 0.3)
+        car.cls = "vehicle"
+        measurer.process(packet_with(camera, people + [cut, car]))
+        if frame < SCALE_MIN_SAMPLES - 1:
+            assert cut.height_m == pytest.approx(0.7 * 1.8)           # too few ratios yet: untouched
+    assert measurer.network_scale.scale == pytest.approx(1 / 0.7, rel=0.02)
+    assert cut.geometry_height_m is None and cut.height_m == pytest.approx(1.8, rel=0.02)
+    assert cut.height_noise_m == pytest.approx(0.15 / 0.7, rel=0.02)
+
+
+def test_network_rescaling_can_be_switched_off():
+    camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 6.0, 25.0)
+    measurer = GeometryMeasurer(CameraConfig(rescale_network=False))
+    for _ in range(SCALE_MIN_SAMPLES + 5):
+        person = _person_read_low(camera, 0.0, 15.0, 1.8, 0.7)
+        measurer.process(packet_with(camera, [person]))
+    assert person.height_m == pytest.approx(0.7 * 1.8) and measurer.network_scale is None
