@@ -117,7 +117,9 @@ class ObjectExtractor:
         self._reference: np.ndarray | None = None
         self.height_threshold_m = ground.height_threshold_m
         self.subtractor = make_background_subtractor(config.background)
-        # Closing joins a person's legs and arms; opening removes speckle. 3x3 at work size.
+        # Closing joins a person's legs and arms (3x3 at work size). No opening: it erased a small
+        # walker's legs (1-2 work pixels wide); speckle is left to min_area_px. Generator dev set,
+        # oracle heights: HOTA 0.525 -> 0.569, false positives 172 -> 115 without it.
         self.kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self.grow_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
         self._prev_height_map: np.ndarray | None = None
@@ -153,7 +155,6 @@ class ObjectExtractor:
 
         candidate = candidate.astype(np.uint8)
         candidate = cv2.morphologyEx(candidate, cv2.MORPH_CLOSE, self.kernel)
-        candidate = cv2.morphologyEx(candidate, cv2.MORPH_OPEN, self.kernel)
         edge = self._image_edge(packet.image_valid, (src_w, src_h), scale)
         detections = self._blobs_to_detections(candidate, moving, work_heights, packet.height_map, scale,
                                                edge)
