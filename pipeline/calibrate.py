@@ -39,10 +39,10 @@ def main(args: argparse.Namespace, config) -> int:
     from pipeline.run_command import apply_flags
     from pipeline.runner import prime_background
     from stages.calibration import ASSUMED_CAMERA_HEIGHT_M, camera_for_run, has_distortion
+    from stages.capture import open_source
     from stages.ground_segmentation import GroundSegmenter
     from stages.height_inference import HeightEstimator
     from stages.heightnet_model import HeightNetModel
-    from stages.capture import open_source
     from stages.object_extraction import ObjectExtractor
     from stages.self_calibration import HeadFootCollector, HeightPrior, self_calibrate
     from stages.tracking import TrackingStage

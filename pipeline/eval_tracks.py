@@ -211,8 +211,9 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
     stages = build_eval_stages(sequence, config, heights, geometry)
     count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
     span = min(len(sequence), max(1, int(config.tracking.background_prime_s * meta.fps)))
-    prime_background([stage for _, stage in stages], [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
-                              for i in evenly_spaced(span, config.tracking.background_prime_frames)])
+    sample = [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
+              for i in evenly_spaced(span, config.tracking.background_prime_frames)]
+    prime_background([stage for _, stage in stages], sample)
     sink = _open_recording(record, config, sequence.name) if record else None
     start = time.perf_counter()
     try:

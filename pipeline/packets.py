@@ -77,7 +77,8 @@ class Detection:
     touches_border: bool = False
     """Some of the object's pixels lie at the edge of the image: it may continue outside."""
     foot_cut: bool = False
-    """The object's bottom lies at the edge of the image: foot_xy is not its ground contact."""
+    """foot_xy is not the object's ground contact: its bottom lies at the edge of the image, or
+    stands above the ground on the height map (legs hidden or missed by the background model)."""
     top_cut: bool = False
     """The object's top lies at the edge of the image: its heights are lower bounds."""
     geometry_height_m: float | None = None

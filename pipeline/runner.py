@@ -222,9 +222,9 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     summary.camera_source = camera.source
     try:
         stages = build_stages(config, camera)
-        tracking = config.tracking
-        prime_background([stage for _, stage in stages], source.background_sample(tracking.background_prime_frames,
-                                                           tracking.background_prime_s))
+        sample = source.background_sample(config.tracking.background_prime_frames,
+                                          config.tracking.background_prime_s)
+        prime_background([stage for _, stage in stages], sample)
         sinks = build_sinks(outputs, config, prefix.name)
     except BaseException:
         source.close()

@@ -1,20 +1,19 @@
 """Geometry measurement: each detection's height and ground position through the calibrated camera.
 
-It also checks the network's scale: on whole people, the median ratio of geometry to network
-height over the run so far says how far the network reads off in this scene (the shipped model
-reads about 0.7x on real footage), and every network height is multiplied by it, so objects
-that only the network can measure (cut by the frame's edge) get the corrected scale too.
-
 A second height measurement, independent of the network: the foot point's ray meets the ground
 plane, and the top point's ray passes the vertical through that ground point at the object's
 height (:func:`stages.calibration.heights_from_foot_top`). The tracker fuses it with the
 network's height, so its noise must be honest: pixel noise of the two points propagated through
 the geometry, the camera-height uncertainty of a self-calibrated camera, and for long objects
 the error of assuming the top is above the foot.
+
+It also checks the network's scale: on whole people, the median ratio of geometry to network
+height over the run so far says how far the network reads off in this scene (the shipped model
+reads about 0.7x on real footage), and every network height is multiplied by it, so objects
+that only the network can measure (cut by the frame's edge) get the corrected scale too.
 """
 
 from __future__ import annotations
-
 
 from collections import deque
 

@@ -8,7 +8,8 @@ Two cues, each covering the other's failure:
 
 A pixel belongs to an object candidate when it is foreground *and* above the ground (and not
 on the ground mask). Without a height map the foreground alone is used; with ``background =
-"none"`` the height map alone. A global brightness change (auto exposure) is divided out
+"none"`` the height map alone. The background model is seeded with the median of frames read
+ahead (``prime_background``), and a global brightness change (auto exposure) is divided out
 before background subtraction. The work is done on a downscaled frame (``work_width``) so the
 stage costs a few milliseconds; boxes and heights are measured back in source pixels.
 

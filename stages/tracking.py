@@ -150,9 +150,7 @@ class ObjectTracker:
             self._apply_detection(self.tracks[row], detections[col])
         for row in leftover_tracks[1]:
             self._miss(self.tracks[row])
-        self.tracks = [t for t in self.tracks if self._alive(t) and (t.updated or frame_size is None
-                                                                     or _share_in_view(t.motion.box, frame_size)
-                                                                     >= MIN_SHARE_IN_VIEW)]
+        self.tracks = [t for t in self.tracks if self._alive(t) and not _left_the_view(t, frame_size)]
         for col in leftover_detections[1]:
             self._start_track(detections[col])
         self._remove_duplicates()
@@ -355,13 +353,16 @@ def _usable(height_m: float | None, noise_m: float | None) -> bool:
             and bool(np.isfinite(height_m)) and bool(np.isfinite(noise_m)) and noise_m > 0)
 
 
-def _share_in_view(box, frame_size: tuple[int, int]) -> float:
-    x, y, w, h = box
+def _left_the_view(track: _TrackState, frame_size: tuple[int, int] | None) -> bool:
+    """Not seen this frame, and its predicted box lies mostly outside the image."""
+    if track.updated or frame_size is None:
+        return False
+    x, y, w, h = track.motion.box
     if w <= 0 or h <= 0:
-        return 0.0
+        return True
     inside_w = max(0.0, min(x + w, frame_size[0]) - max(x, 0.0))
     inside_h = max(0.0, min(y + h, frame_size[1]) - max(y, 0.0))
-    return inside_w * inside_h / (w * h)
+    return inside_w * inside_h / (w * h) < MIN_SHARE_IN_VIEW
 
 
 def _top_lost(predicted_box, box) -> bool:

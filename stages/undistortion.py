@@ -37,9 +37,7 @@ class Undistorter:
             camera.K, np.asarray(camera.dist, float), None, camera.K, self.size, cv2.CV_16SC2)
         self.camera = dataclasses.replace(camera, dist=None)
         """The camera of the undistorted frames."""
-        white = np.full((self.size[1], self.size[0]), 255, np.uint8)
-        filled = cv2.remap(white, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        self.image_valid = filled == 255
+        self.image_valid = self.undistort(np.full((self.size[1], self.size[0]), 255, np.uint8)) == 255
         """Pixels of the undistorted frame that come from the raw frame (not the black border)."""
 
     def undistort(self, image: np.ndarray) -> np.ndarray:
