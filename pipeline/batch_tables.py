@@ -28,6 +28,8 @@ class TrackRow:
     height_m: float
     """The filtered height at the track's last confirmed frame."""
     height_std_m: float
+    height_source: str
+    """Where the last height came from: 'network', 'geometry' or 'fused'."""
     first_time_s: float
     last_time_s: float
     frames_seen: int
@@ -60,9 +62,11 @@ def read_track_rows(tracks_csv: Path, source: str, video: str) -> list[TrackRow]
             time_s, height, std = float(record["time_s"]), float(record["height_m"]), float(record["height_std_m"])
             row = rows.get(track_id)
             if row is None:
-                rows[track_id] = TrackRow(source, video, track_id, record["class"], height, std, time_s, time_s, 1)
+                rows[track_id] = TrackRow(source, video, track_id, record["class"], height, std,
+                                          record["height_source"], time_s, time_s, 1)
                 continue
             row.cls, row.height_m, row.height_std_m = record["class"], height, std
+            row.height_source = record["height_source"]
             row.first_time_s = min(row.first_time_s, time_s)
             row.last_time_s = max(row.last_time_s, time_s)
             row.frames_seen += 1

@@ -108,7 +108,7 @@ def test_archive_tables_hold_every_track_and_every_video(local_batch):
     assert sorted(v["status"] for v in videos) == ["done"] * 6 + ["failed"]
     tracks = read_csv(out / "tracks.csv")
     assert list(tracks[0]) == ["source", "video", "track_id", "class", "height_m", "height_std_m",
-                               "first_time_s", "last_time_s", "frames_seen"]
+                               "height_source", "first_time_s", "last_time_s", "frames_seen"]
     for entry in (e for e in manifest(out).values() if e["status"] == "done"):
         per_frame = read_csv(out / "videos" / f"{entry['output_name']}.tracks.csv")
         mine = [t for t in tracks if t["video"] == entry["output_name"]]
@@ -119,6 +119,7 @@ def test_archive_tables_hold_every_track_and_every_video(local_batch):
             assert int(track["frames_seen"]) == len(rows)
             # NaN where no frame gave a height (e.g. an object only ever seen cut by the frame's edge).
             assert np.array_equal(float(track["height_m"]), float(rows[-1]["height_m"]), equal_nan=True)
+            assert track["height_source"] == rows[-1]["height_source"]
             assert float(track["first_time_s"]) == min(float(r["time_s"]) for r in rows)
             assert float(track["last_time_s"]) == max(float(r["time_s"]) for r in rows)
     try:
