@@ -94,10 +94,14 @@ class TrackingConfig:
     """Blobs whose top is higher than this are scenery (buildings, trees), not movers (a bus is ~3.5 m)."""
     min_foreground_share: float = 0.4
     """Blobs less than this share foreground are clutter (rain or leaves over a static structure)."""
-    min_hits: int = 3
-    """Detections in a row before a track is confirmed (reported)."""
+    min_hits: int = 2
+    """Detections in a row before a track is confirmed (reported), at least ..."""
+    confirm_s: float = 0.2
+    """... and at least this long in source time (10 fps: 2 detections, 25 fps: 5)."""
     max_misses: int = 30
-    """Frames without a detection before a track is deleted."""
+    """Frames without a detection before a track is deleted, at least ..."""
+    max_miss_s: float = 3.0
+    """... and at least this long in source time (10 fps: 30 frames, 25 fps: 75)."""
     iou_gate: float = 0.1
     """Minimum IoU for an association."""
     height_process_noise_m: float = 0.002

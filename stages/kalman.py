@@ -90,6 +90,14 @@ class MotionFilter:
         # A box cannot shrink below a pixel; a negative size would flip the box.
         self.kf.x[2:4] = np.maximum(self.kf.x[2:4], 1.0)
 
+    def hold_size(self) -> None:
+        """Stop the box's size from changing (while the object is not seen).
+
+        Extrapolated, a size velocity learnt from a few noisy frames shrinks a coasting box to one
+        pixel or stretches it over the frame within a second; an unseen object keeps its size.
+        """
+        self.kf.x[6:8] = 0.0
+
     def measurement_noise(self, noise_scale: float = 1.0) -> np.ndarray:
         w, h = max(self.kf.x[2, 0], 1.0), max(self.kf.x[3, 0], 1.0)
         std = np.array([STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,

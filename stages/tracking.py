@@ -20,14 +20,15 @@ One frame, in order:
    height are fused into the height filter (for walkers each channel goes through the upper
    quantile of a short window: stature, not the gait's mean dip nor a blob that lost its feet
    or head for a frame); outliers beyond ``height_gate_sigma`` are skipped.
-7. Tracks are confirmed after ``min_hits`` hits in a row and dropped after ``max_misses``
-   frames without a hit; a tentative track is dropped at its first miss; of two tracks
+7. Tracks are confirmed after ``min_hits`` hits in a row (and ``confirm_s`` seconds of them)
+   and dropped after ``max_misses`` frames without a hit (and ``max_miss_s`` seconds): durations,
+   so that a 25 fps camera and a 10 fps one behave alike; a tentative track is dropped at its first miss; of two tracks
    covering one object, the younger is dropped.
 """
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -124,13 +125,20 @@ class ObjectTracker:
         self.filters = filters or FilterFactory(config)
         self.tracks: list[_TrackState] = []
         self._next_id = 1
+        self.required_hits = config.min_hits
+        self.allowed_misses = config.max_misses
 
     def update(self, detections: list[Detection], matches: FeatureMatches | None = None,
-               frame_size: tuple[int, int] | None = None) -> list[Track]:
+               frame_size: tuple[int, int] | None = None, frame_interval_s: float | None = None) -> list[Track]:
         """Advance every track by one frame and fold in this frame's detections.
 
         ``frame_size`` (width, height): tracks that coast out of the image are dropped.
+        ``frame_interval_s``: source time between processed frames; turns ``confirm_s`` and
+        ``max_miss_s`` into frame counts (without it: ``min_hits`` and ``max_misses``).
         """
+        if frame_interval_s is not None and frame_interval_s > 0:
+            self.required_hits = max(self.config.min_hits, round(self.config.confirm_s / frame_interval_s))
+            self.allowed_misses = max(self.config.max_misses, round(self.config.max_miss_s / frame_interval_s))
         if matches is not None:
             self._compensate_camera_motion(np.asarray(matches.camera_motion, dtype=float))
         for track in self.tracks:
@@ -254,9 +262,10 @@ class ObjectTracker:
     def _alive(self, track: _TrackState) -> bool:
         if not track.confirmed:
             return track.misses == 0
-        return track.misses <= self.config.max_misses
+        return track.misses <= self.allowed_misses
 
     def _miss(self, track: _TrackState) -> None:
+        track.motion.hold_size()
         track.misses += 1
         track.hit_streak = 0
         track.updated = False
@@ -280,7 +289,7 @@ class ObjectTracker:
         if detection.ground_xy_m is not None:
             track.ground_xy_m = detection.ground_xy_m
         self._update_height(track, detection, _top_lost(predicted_box, detection.box))
-        if track.hit_streak >= self.config.min_hits:
+        if track.hit_streak >= self.required_hits:
             track.confirmed = True
 
     def _reupdate_along_virtual_path(self, track: _TrackState, box, gap: int) -> None:
@@ -343,7 +352,7 @@ class ObjectTracker:
         )
         track.snapshot = track.motion.snapshot()
         self._update_height(track, detection, top_lost=False)
-        track.confirmed = self.config.min_hits <= 1
+        track.confirmed = self.required_hits <= 1
         self._next_id += 1
         self.tracks.append(track)
 
@@ -384,8 +393,18 @@ class TrackingStage:
 
     def __init__(self, config: TrackingConfig):
         self.tracker = ObjectTracker(config)
+        self._last_time_s: float | None = None
+        self._intervals: deque[float] = deque(maxlen=25)
 
     def process(self, packet: FramePacket) -> FramePacket:
         height, width = packet.frame.image.shape[:2]
-        packet.tracks = self.tracker.update(packet.detections, packet.matches, frame_size=(width, height))
+        packet.tracks = self.tracker.update(packet.detections, packet.matches, frame_size=(width, height),
+                                            frame_interval_s=self._frame_interval(packet.frame.time_s))
         return packet
+
+    def _frame_interval(self, time_s: float) -> float | None:
+        """Median source time between the recent processed frames (stride included; None at first)."""
+        if self._last_time_s is not None and time_s > self._last_time_s:
+            self._intervals.append(time_s - self._last_time_s)
+        self._last_time_s = time_s
+        return float(np.median(self._intervals)) if self._intervals else None

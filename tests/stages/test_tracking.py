@@ -106,6 +106,47 @@ def test_a_track_that_walks_out_of_the_frame_is_dropped_not_coasted():
     assert [len(blind.update([])) for _ in range(5)] == [1] * 5
 
 
+def test_confirmation_and_coasting_are_durations_not_frame_counts():
+    """0.2 s to confirm, 3 s of coasting: 2 and 30 frames at 10 fps, 5 and 75 at 25 fps."""
+    config = TrackingConfig(min_hits=2, confirm_s=0.2, max_misses=30, max_miss_s=3.0)
+    for fps, hits, misses in ((10.0, 2, 30), (25.0, 5, 75)):
+        tracker = ObjectTracker(config)
+        confirmed_at = None
+        for frame in range(8):
+            tracks = tracker.update([_detection(100 + frame, 50, 1.7)], frame_interval_s=1.0 / fps)
+            if confirmed_at is None and tracks[0].confirmed:
+                confirmed_at = frame + 1
+        assert confirmed_at == hits
+        # A 2 s full occlusion: 50 frames at 25 fps, beyond max_misses (30) but within 3 s.
+        for _ in range(int(2.0 * fps)):
+            tracks = tracker.update([], frame_interval_s=1.0 / fps)
+        assert len(tracks) == 1
+        assert tracker.allowed_misses == misses
+
+
+def test_tracking_stage_measures_the_frame_interval_from_source_times():
+    stage = TrackingStage(TrackingConfig(min_hits=2, confirm_s=0.2))
+    camera = CameraInfo(640, 480)
+    for index in range(4):                       # 25 fps: 0.04 s apart
+        stage.process(FramePacket(Frame(index, 0.04 * index, np.zeros((480, 640, 3), np.uint8)), camera))
+    assert stage.tracker.required_hits == 5
+    strided = TrackingStage(TrackingConfig(min_hits=2, confirm_s=0.2))
+    for index in range(4):                       # the same video with stride 5: 0.2 s apart
+        strided.process(FramePacket(Frame(5 * index, 0.2 * index, np.zeros((480, 640, 3), np.uint8)), camera))
+    assert strided.tracker.required_hits == 2    # never fewer than min_hits
+
+
+def test_a_coasting_box_keeps_its_size():
+    """Seen while its box narrowed by 3 px a frame; unseen, it keeps the last size."""
+    tracker = ObjectTracker(TrackingConfig(min_hits=2))
+    for frame in range(8):
+        tracker.update([_detection(100 + 4 * frame, 50, 1.7, w=60 - 3 * frame, h=80 + 2 * frame)])
+    last_w, last_h = tracker.tracks[0].motion.box[2:]
+    for _ in range(20):
+        tracks = tracker.update([])
+    assert tracks[0].box[2] == pytest.approx(last_w, abs=4) and tracks[0].box[3] == pytest.approx(last_h, abs=4)
+
+
 def test_missing_heights_do_not_crash_or_poison_the_state():
     tracker = ObjectTracker(TrackingConfig())
     tracks = tracker.update([_detection(10, 10, float("nan"), noise_m=float("inf"))])
