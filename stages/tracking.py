@@ -22,8 +22,9 @@ One frame, in order:
    or head for a frame); outliers beyond ``height_gate_sigma`` are skipped.
 7. Tracks are confirmed after ``min_hits`` hits in a row (and ``confirm_s`` seconds of them)
    and dropped after ``max_misses`` frames without a hit (and ``max_miss_s`` seconds): durations,
-   so that a 25 fps camera and a 10 fps one behave alike; a tentative track is dropped at its first miss; of two tracks
-   covering one object, the younger is dropped.
+   so that a 25 fps camera and a 10 fps one behave alike. A tentative track is dropped at its
+   first miss, a coasting one when it leaves the view; of two tracks covering one object, the
+   younger is dropped.
 """
 
 from __future__ import annotations
