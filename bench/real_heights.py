@@ -42,7 +42,7 @@ MODES = ("calibration", "camera-height", "self")
 @dataclass
 class LabelledPerson:
     person: int
-    box: np.ndarray       # x1, y1, x2, y2 in the run's frame
+    box: np.ndarray       # x, y, w, h in the run's frame
     head: np.ndarray      # head-top point (u, v)
     foot: np.ndarray      # foot point (u, v)
     foot_inside: bool
@@ -81,7 +81,7 @@ def load_labels(undistort: bool) -> dict[int, list[LabelledPerson]]:
             if undistort:
                 points = undistort_pixels(camera, points)
             corners = points[2:]
-            box = np.array([*corners.min(0), *corners.max(0)])
+            box = np.array([*corners.min(0), *(corners.max(0) - corners.min(0))])
             frames.setdefault(int(row["frame"]), []).append(LabelledPerson(
                 int(row["person"]), box, points[0], points[1], row["foot_inside_image"] == "1",
                 float(row["height_headtop_m"])))
@@ -96,16 +96,10 @@ def read_tracks(path: Path) -> dict[int, list[dict]]:
     return rows
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = w * h
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / union if union > 0 else 0.0
-
-
 def score(mode: str, tracks_csv: Path, undistorted: bool) -> ModeResult:
     """Compare a run's confirmed person tracks with the labels."""
+    from stages.association import iou_matrix
+
     labels = load_labels(undistorted)
     by_frame = read_tracks(tracks_csv)
     final: dict[int, dict] = {}
@@ -128,9 +122,8 @@ def score(mode: str, tracks_csv: Path, undistorted: bool) -> ModeResult:
             if int(row["track_id"]) not in persons:
                 continue
             x, y, w, h = (float(row[k]) for k in ("x", "y", "w", "h"))
-            box = np.array([x, y, x + w, y + h])
-            ious = [_iou(box, p.box) for p in people]
-            if not ious or max(ious) < MATCH_IOU:
+            ious = iou_matrix([(x, y, w, h)], [p.box for p in people])[0]
+            if not ious.size or ious.max() < MATCH_IOU:
                 continue
             person = people[int(np.argmax(ious))]
             votes.setdefault(int(row["track_id"]), {}).setdefault(person.person, 0)
