@@ -203,16 +203,16 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
 
     from pipeline.packets import Frame, FramePacket
     from pipeline.runner import prime_background
-    from stages.capture import evenly_spaced
+    from stages.capture import background_indices
 
     meta = sequence.meta
     run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
     camera = camera_info(sequence)
     stages = build_eval_stages(sequence, config, heights, geometry)
     count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
-    span = min(len(sequence), max(1, int(config.tracking.background_prime_s * meta.fps)))
     sample = [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
-              for i in evenly_spaced(span, config.tracking.background_prime_frames)]
+              for i in background_indices(len(sequence), meta.fps, config.tracking.background_prime_frames,
+                                          config.tracking.background_prime_s)]
     prime_background([stage for _, stage in stages], sample)
     sink = _open_recording(record, config, sequence.name) if record else None
     start = time.perf_counter()

@@ -106,6 +106,11 @@ def evenly_spaced(total: int, count: int) -> list[int]:
     return sorted({int(round(i)) for i in np.linspace(0, total - 1, min(count, total))})
 
 
+def background_indices(total: int, fps: float, count: int, span_s: float) -> list[int]:
+    """Up to ``count`` frame indices spread over the first ``span_s`` seconds of ``total`` frames."""
+    return evenly_spaced(min(total, max(1, int(span_s * fps))), count)
+
+
 def _ensure_bgr(image: np.ndarray) -> np.ndarray:
     if image.ndim == 2:
         return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
@@ -175,8 +180,7 @@ class VideoFileSource(FrameSource):
         total = self.stats.expected or 0
         if count <= 0 or total <= 0:
             return []
-        span = min(total, max(1, int(span_s * (self.fps or 25.0))))
-        wanted = set(evenly_spaced(span, count))
+        wanted = set(background_indices(total, self.fps or 25.0, count, span_s))
         capture = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)  # a second reader: the run's is untouched
         images = []
         try:
@@ -218,8 +222,8 @@ class ImageFolderSource(FrameSource):
             yield index, index / self.fps, FAILED if image is None else image
 
     def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
-        span = min(len(self.paths), max(1, int(span_s * self.fps)))
-        images = [cv2.imread(str(self.paths[i]), cv2.IMREAD_COLOR) for i in evenly_spaced(span, count)]
+        images = [cv2.imread(str(self.paths[i]), cv2.IMREAD_COLOR)
+                  for i in background_indices(len(self.paths), self.fps, count, span_s)]
         return [image for image in images if image is not None]
 
 
