@@ -324,11 +324,12 @@ class ObjectExtractor:
         touches_border = bool(at_edge.any())
         height_m, noise_m = float("nan"), float("inf")
         if height_map is not None:
-            height_m = robust_top(height_map[y0:y1, x0:x1], mask, self.config.height_percentile)
+            heights = height_map[y0:y1, x0:x1]
+            height_m = robust_top(heights, mask, self.config.height_percentile)
             if not (self.config.min_object_height_m <= height_m <= self.config.max_object_height_m):
                 return None
             noise_m = self._height_noise(height_m, box_h, touches_border)
-            foot_cut = foot_cut or _foot_above_ground(height_map[y0:y1, x0:x1], mask, rows, height_m)
+            foot_cut = foot_cut or _foot_above_ground(heights, mask, rows, height_m)
             if top_cut:
                 noise_m = float("inf")    # top cut off by the frame: a lower bound, not a height
         return Detection(
