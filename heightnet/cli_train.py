@@ -7,7 +7,8 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", default="", metavar="DIR", help="synth dataset (default: train.data)")
+    parser.add_argument("--data", default="", metavar="DIR[,DIR...]",
+                        help="synth dataset(s), comma-separated (default: train.data)")
     parser.add_argument("--out", default="", metavar="DIR", help="run folder (default: train.out)")
     parser.add_argument("--resume", action="store_true", help="continue the run folder's checkpoint")
     parser.add_argument("--max-steps", type=int, default=0, metavar="N",
@@ -25,17 +26,21 @@ def main(args: argparse.Namespace, config) -> int:
 
     train_config = dataclasses.replace(config.train, data=args.data or config.train.data,
                                        out=args.out or config.train.out)
-    root = Path(train_config.data)
-    if not (root / "manifest.json").is_file():
-        raise ConfigError(f"no synth dataset at {root} (make one with `heightpipe synth`)")
-    sequences = list_sequences(root, split="train")
-    if not sequences:
-        raise ConfigError(f"{root} has no training sequences")
-    cached = build_cache(sequences, root / ".heightnet_cache", train_config.matcher,
-                         progress=not args.no_progress)
-    data_hash = dataset_hash(root, {k: getattr(train_config, k) for k in
-                                    ("architecture", "target", "input_width", "input_height",
-                                     "consistency_weight", "seed")})
+    roots = [Path(part.strip()) for part in train_config.data.split(",") if part.strip()]
+    if not roots:
+        raise ConfigError("train.data names no dataset")
+    cached = []
+    for root in roots:
+        if not (root / "manifest.json").is_file():
+            raise ConfigError(f"no synth dataset at {root} (make one with `heightpipe synth`)")
+        sequences = list_sequences(root, split="train")
+        if not sequences:
+            raise ConfigError(f"{root} has no training sequences")
+        cached += build_cache(sequences, root / ".heightnet_cache", train_config.matcher,
+                              progress=not args.no_progress)
+    data_hash = dataset_hash(roots, {k: getattr(train_config, k) for k in
+                                     ("architecture", "target", "input_width", "input_height",
+                                      "consistency_weight", "seed")})
     result = train(train_config, cached, data_hash, resume=args.resume,
                    progress=not args.no_progress, max_steps=args.max_steps or None)
     print(f"step {result.steps}: checkpoint {result.checkpoint}; log {Path(train_config.out) / 'log.csv'}")

@@ -100,10 +100,13 @@ def _same_instance(pts: np.ndarray, instance0: np.ndarray, instance1: np.ndarray
 
 # ----------------------------------------------------------------------------- cache
 
-def dataset_hash(root: Path, extra: dict[str, Any] | None = None) -> str:
-    """Hex digest of the dataset manifest (+ training settings): which data made a model."""
-    manifest = Path(root) / "manifest.json"
-    digest = hashlib.sha256(manifest.read_bytes() if manifest.is_file() else str(root).encode())
+def dataset_hash(roots: Path | Sequence[Path], extra: dict[str, Any] | None = None) -> str:
+    """Hex digest of the dataset manifest(s) (+ training settings): which data made a model."""
+    roots = [roots] if isinstance(roots, (str, Path)) else list(roots)
+    digest = hashlib.sha256()
+    for root in roots:
+        manifest = Path(root) / "manifest.json"
+        digest.update(manifest.read_bytes() if manifest.is_file() else str(root).encode())
     digest.update(json.dumps(extra or {}, sort_keys=True).encode())
     return digest.hexdigest()[:16]
 

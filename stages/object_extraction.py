@@ -44,6 +44,12 @@ _FOREGROUND_VALUE = 255
 CORE_SHARE = 0.6
 CORE_MIN_SHARE = 0.15
 CORE_MIN_AREA_SHARE = 0.25
+# Side-by-side split on the foreground: a group of foreground pieces seeds a piece of its own when
+# it covers this share of the blob's rows and is narrower than this share of its own height.
+SIDE_MIN_ROWS_SHARE = 0.5
+SIDE_MAX_ASPECT = 0.8
+# ... and only when the seeds together are at least this share of their height wide.
+SIDE_MIN_PAIR_ASPECT = 0.6
 # Exposure compensation: log-ratio histogram (bins of 0.02 over a factor of e each way) and the
 # gain change below which a frame is left alone (10 %: smaller steps are left to the model).
 EXPOSURE_BINS = 100
@@ -256,17 +262,25 @@ class ObjectExtractor:
             if area < min_area_work:
                 continue
             blob = labels[y:y + h, x:x + w] == label
-            pieces = [blob]
-            if work_heights is not None:
-                pieces = split_by_height_peaks(blob, work_heights[y:y + h, x:x + w], min_area_work)
+            fg = None if moving is None else moving[y:y + h, x:x + w]
+            # Rain streaks and swaying leaves over a building or a tree are foreground too,
+            # but sparse: a moving object is mostly foreground itself.
+            if fg is not None and fg[blob].mean() < self.config.min_foreground_share:
+                continue
+            # People side by side part on the foreground (each keeps the blob's share test: a
+            # person whose coat the background model half missed is still a person).
+            pieces = [blob] if fg is None else split_by_foreground(blob, fg, min_area_work)
             for piece in pieces:
-                # Rain streaks and swaying leaves over a building or a tree are foreground too,
-                # but sparse: a moving object is mostly foreground itself.
-                if moving is not None and moving[y:y + h, x:x + w][piece].mean() < self.config.min_foreground_share:
-                    continue
-                detection = self._piece_to_detection(piece, (x, y), height_map, scale, edge)
-                if detection is not None:
-                    detections.append(detection)
+                parts = [piece]
+                if work_heights is not None:
+                    parts = split_by_height_peaks(piece, work_heights[y:y + h, x:x + w], min_area_work)
+                for part in parts:
+                    # A part cut off by height (a facade beside a walker) must be moving itself.
+                    if fg is not None and len(parts) > 1 and fg[part].mean() < 0.5 * self.config.min_foreground_share:
+                        continue
+                    detection = self._piece_to_detection(part, (x, y), height_map, scale, edge)
+                    if detection is not None:
+                        detections.append(detection)
         return detections
 
     def _piece_to_detection(self, piece: np.ndarray, offset: tuple[int, int], height_map: np.ndarray | None,
@@ -418,15 +432,66 @@ def split_by_height_peaks(blob: np.ndarray, heights: np.ndarray, min_area: float
             if area >= max(CORE_MIN_SHARE * areas.max(), CORE_MIN_AREA_SHARE * min_area)]
     if len(keep) < 2:
         return [blob]
-    seeds = np.full(blob.shape, 255, np.uint8)
-    for label in keep:
-        seeds[labels == label] = 0
+    return _split_by_seeds(blob, [labels == label for label in keep], min_area)
+
+
+def split_by_foreground(blob: np.ndarray, moving: np.ndarray, min_area: float) -> list[np.ndarray]:
+    """Split a blob where its own foreground shows people side by side.
+
+    The foreground is grown before it is cut to the height map (flat-coloured parts of an object
+    drop out of the background model), and at the work size that growth bridges the few pixels
+    between two people walking side by side; the network's height map is too smooth to part
+    them either. The foreground itself still does: its pieces are grouped by the columns they
+    cover (a person's fragments lie one above the other), and groups that are person-shaped
+    (``SIDE_MIN_ROWS_SHARE`` of the blob's rows or more, narrower than ``SIDE_MAX_ASPECT``) seed
+    one piece each, if together they are wider than one person. A car's fragments are wider
+    than tall and stay one object; a walker whose foreground comes in vertical stripes (MOG2's
+    sparse masks) is too narrow for two.
+    """
+    fg = (blob & moving).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
+    if count <= 2:
+        return [blob]
+    blob_rows = np.flatnonzero(blob.any(axis=1))
+    span = blob_rows[-1] - blob_rows[0] + 1
+    parts = sorted((i for i in range(1, count) if stats[i, cv2.CC_STAT_AREA] >= CORE_MIN_AREA_SHARE * min_area),
+                   key=lambda i: stats[i, cv2.CC_STAT_LEFT])
+    groups: list[list[int]] = []
+    right = -1                    # first column right of the current group
+    for i in parts:
+        left, end = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_LEFT] + stats[i, cv2.CC_STAT_WIDTH]
+        if groups and left < right:
+            groups[-1].append(i)
+            right = max(right, end)
+        else:
+            groups.append([i])
+            right = end
+    seeds = []
+    for group in groups:
+        mask = np.isin(labels, group)
+        rows, cols = np.nonzero(mask)
+        height, width = rows.max() - rows.min() + 1, cols.max() - cols.min() + 1
+        if height >= SIDE_MIN_ROWS_SHARE * span and width < SIDE_MAX_ASPECT * height:
+            seeds.append(mask)
+    if len(seeds) < 2:
+        return [blob]
+    rows, cols = np.nonzero(np.logical_or.reduce(seeds))
+    if cols.max() - cols.min() + 1 < SIDE_MIN_PAIR_ASPECT * (rows.max() - rows.min() + 1):
+        return [blob]             # as narrow as one person: one walker's foreground in stripes
+    return _split_by_seeds(blob, seeds, min_area)
+
+
+def _split_by_seeds(blob: np.ndarray, seeds: list[np.ndarray], min_area: float) -> list[np.ndarray]:
+    """Every blob pixel to its nearest seed; the pieces, or the blob whole if fewer than two are big enough."""
+    free = np.full(blob.shape, 255, np.uint8)
+    for seed in seeds:
+        free[seed] = 0
     # Label of the nearest seed component for every pixel (the seeds are the zero pixels).
-    _, nearest = cv2.distanceTransformWithLabels(seeds, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_CCOMP)
+    _, nearest = cv2.distanceTransformWithLabels(free, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_CCOMP)
     pieces = []
-    for label in keep:
-        seed_label = nearest[labels == label][0]
-        piece = blob & (nearest == seed_label)
+    for seed in seeds:
+        seed_labels = np.unique(nearest[seed])
+        piece = blob & np.isin(nearest, seed_labels)
         if piece.sum() >= min_area:
             pieces.append(piece)
     return pieces if len(pieces) >= 2 else [blob]

@@ -231,6 +231,56 @@ def test_merged_blob_splits_at_separate_height_peaks():
     assert len(split_by_height_peaks(np.ones((60, 20), bool), single, min_area=40)) == 1
 
 
+def test_people_side_by_side_split_on_their_foreground():
+    """The grown blob bridges the gap between two walkers; their own foreground does not."""
+    from stages.object_extraction import split_by_foreground
+
+    blob = np.zeros((60, 50), bool)
+    blob[:, 3:47] = True
+    moving = np.zeros_like(blob)
+    moving[2:58, 6:22] = True                              # left person
+    moving[0:60, 26:44] = True                             # right person, two columns apart
+    moving[30:34, 4:6] = True                              # a hand: too small to seed anything
+    pieces = split_by_foreground(blob, moving, min_area=40)
+    assert len(pieces) == 2
+    left, right = sorted(pieces, key=lambda p: np.nonzero(p)[1].mean())
+    assert left[:, 6:22].all() and not left[:, 26:44].any()
+    assert right[:, 26:44].all() and not right[:, 6:22].any()
+    assert (left | right).sum() == blob.sum()              # every blob pixel goes to one of them
+
+
+def test_one_persons_stacked_fragments_and_a_car_stay_whole():
+    from stages.object_extraction import split_by_foreground
+
+    blob = np.ones((60, 20), bool)
+    coat_missed = np.zeros_like(blob)
+    coat_missed[0:12, 6:14] = True                         # head and shoulders
+    coat_missed[35:60, 4:16] = True                        # legs: the plain coat between is not foreground
+    assert len(split_by_foreground(blob, coat_missed, min_area=40)) == 1
+
+    car = np.ones((30, 90), bool)
+    halves = np.zeros_like(car)
+    halves[2:30, 2:40] = True                              # front and back of a car, wider than tall
+    halves[2:30, 48:88] = True
+    assert len(split_by_foreground(car, halves, min_area=40)) == 1
+
+
+def test_two_walkers_side_by_side_are_two_detections():
+    """A smooth height map (like the network's) shows one hump; the foreground shows two people."""
+    import cv2
+
+    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    frames = [[]] * 5 + [[(100 + 5 * i, 150, 40, 120, 1.7), (146 + 5 * i, 150, 40, 120, 1.7)]
+                         for i in range(8)]
+    for index, people in enumerate(frames):
+        image, heights, _ = _scene(index, people)
+        heights = cv2.GaussianBlur(heights, (0, 0), 6)
+        packet = extractor.process(_packet(index, image, heights, heights < 0.1))
+    assert len(packet.detections) == 2
+    lefts = sorted(d.box[0] for d in packet.detections)
+    assert lefts == pytest.approx([135, 181], abs=8)   # + the growth of the foreground (3 work px)
+
+
 def test_height_consistency_residual_raises_the_noise():
     """Points matched onto the person whose height changed between frames: trust this frame less."""
     from pipeline.packets import FeatureMatches
