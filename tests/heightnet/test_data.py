@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 
 from heightnet.data import Augmentation, PairDataset, match_features
@@ -56,3 +58,15 @@ def test_same_item_same_epoch_is_deterministic(cached_sequences):
     assert np.array_equal(a["image"], b["image"]) and np.array_equal(a["matches"], b["matches"])
     dataset.epoch = 1
     assert not np.array_equal(dataset[2]["image"], a["image"])
+
+
+def test_dataset_hash_names_every_dataset_a_model_was_trained_on(tmp_path):
+    from heightnet.data import dataset_hash
+
+    for name, sequences in (("a", ["seq00000"]), ("b", ["seq00001"])):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "manifest.json").write_text(json.dumps({"sequences": sequences}))
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert dataset_hash(a) == dataset_hash([a])
+    assert dataset_hash([a, b]) not in (dataset_hash(a), dataset_hash(b))
+    assert dataset_hash([a, b], {"seed": 0}) != dataset_hash([a, b], {"seed": 1})
