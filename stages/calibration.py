@@ -236,7 +236,9 @@ def camera_for_run(config: CameraConfig, width: int, height: int) -> CameraInfo:
     has_angles = config.pitch_deg != 0.0
     if config.calibration:
         camera = rescale_camera(load_calibration(config.calibration), width, height)
-        if camera.R is not None:
+        # A pose in [camera] (height and pitch, as `heightpipe calibrate` prints them) takes
+        # only the intrinsics from the file; a height alone must agree with the file's pose.
+        if camera.R is not None and not (config.height_m > 0 and has_angles):
             if config.height_m > 0 and abs(config.height_m - camera.height_m) > 0.02 * camera.height_m:
                 raise ConfigError(f"camera.height_m = {config.height_m} contradicts the calibration "
                                   f"{config.calibration} (camera {camera.height_m:.2f} m above ground)")

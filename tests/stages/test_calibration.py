@@ -362,3 +362,16 @@ def test_camera_height_flag_must_agree_with_a_calibration():
     assert ok.height_m == pytest.approx(7.844, abs=1e-3)
     with pytest.raises(ConfigError, match="contradicts"):
         camera_for_run(CameraConfig(calibration=str(OXFORD_CALIBRATION), height_m=5.0), 1920, 1080)
+
+
+@needs_oxford
+def test_a_pose_in_the_config_takes_only_the_intrinsics_from_a_calibration_file():
+    """What `heightpipe calibrate --calibration FILE` prints: its own height and pitch, the file's lens."""
+    from_file = camera_for_run(CameraConfig(calibration=str(OXFORD_CALIBRATION)), 1920, 1080)
+    snippet = CameraConfig(calibration=str(OXFORD_CALIBRATION), height_m=4.8, pitch_deg=13.8,
+                           roll_deg=2.0, self_calibrated=True)
+    camera = camera_for_run(snippet, 1920, 1080)
+    assert camera.source == "self"
+    assert camera.height_m == pytest.approx(4.8)
+    assert camera.K == pytest.approx(from_file.K)
+    assert camera.dist == pytest.approx(from_file.dist)
