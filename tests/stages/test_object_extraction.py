@@ -239,7 +239,7 @@ def test_people_side_by_side_split_on_their_foreground():
     blob[:, 3:47] = True
     moving = np.zeros_like(blob)
     moving[2:58, 6:22] = True                              # left person
-    moving[0:60, 26:44] = True                             # right person, two columns apart
+    moving[0:60, 26:44] = True                             # right person, four columns apart
     moving[30:34, 4:6] = True                              # a hand: too small to seed anything
     pieces = split_by_foreground(blob, moving, min_area=40)
     assert len(pieces) == 2
