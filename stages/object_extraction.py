@@ -268,6 +268,7 @@ class ObjectExtractor:
                 continue
             blob = labels[y:y + h, x:x + w] == label
             fg = None if moving is None else moving[y:y + h, x:x + w]
+            heights = None if work_heights is None else work_heights[y:y + h, x:x + w]
             # Rain streaks and swaying leaves over a building or a tree are foreground too,
             # but sparse: a moving object is mostly foreground itself.
             if fg is not None and fg[blob].mean() < self.config.min_foreground_share:
@@ -276,9 +277,7 @@ class ObjectExtractor:
             # person whose coat the background model half missed is still a person).
             pieces = [blob] if fg is None else split_by_foreground(blob, fg, min_area_work)
             for piece in pieces:
-                parts = [piece]
-                if work_heights is not None:
-                    parts = split_by_height_peaks(piece, work_heights[y:y + h, x:x + w], min_area_work)
+                parts = [piece] if heights is None else split_by_height_peaks(piece, heights, min_area_work)
                 for part in parts:
                     # A part cut off by height (a facade beside a walker) must be moving itself.
                     if (fg is not None and len(parts) > 1
