@@ -135,8 +135,8 @@ class ObjectExtractor:
         self.kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self.grow_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
         self._prev_height_map: np.ndarray | None = None
-        self._edge: tuple[object, tuple[int, int], np.ndarray] | None = None
-        """(the image_valid it was made from, frame size, edge mask): see ``_image_edge``."""
+        self._edge: tuple[object, tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None
+        """(the image_valid it was made from, frame size, edge masks): see ``_image_edge``."""
 
     def process(self, packet: FramePacket) -> FramePacket:
         image = packet.frame.image
@@ -152,6 +152,7 @@ class ObjectExtractor:
             packet.foreground = _resize_mask(moving, (src_w, src_h))
 
         above, work_heights = self._above_ground(packet, work_size)
+        grown = None if moving is None else cv2.dilate(moving.astype(np.uint8), self.grow_kernel).astype(bool)
         if moving is None and above is None:
             packet.detections = []
             return packet
@@ -163,13 +164,13 @@ class ObjectExtractor:
         else:
             # Foreground grown by a few pixels: flat-coloured parts of an object (a car roof, a
             # plain coat) drop out of the background model; the height map fills them back in.
-            candidate = cv2.dilate(moving.astype(np.uint8), self.grow_kernel).astype(bool) & above
+            candidate = grown & above
 
         candidate = candidate.astype(np.uint8)
         candidate = cv2.morphologyEx(candidate, cv2.MORPH_CLOSE, self.kernel)
-        edge = self._image_edge(packet.image_valid, (src_w, src_h), scale)
-        detections = self._blobs_to_detections(candidate, moving, work_heights, packet.height_map, scale,
-                                               edge)
+        edge, work_edge = self._image_edge(packet.image_valid, (src_w, src_h), scale, work_size)
+        detections = self._blobs_to_detections(candidate, moving, grown, work_heights, packet.height_map,
+                                               scale, edge, work_edge)
         if packet.height_map is not None:
             self._add_consistency_noise(detections, packet)
         packet.detections = detections
@@ -221,11 +222,13 @@ class ObjectExtractor:
         self._reference += REFERENCE_RATE * (grey - self._reference)
         return small
 
-    def _image_edge(self, image_valid: np.ndarray | None, size: tuple[int, int], scale: float) -> np.ndarray:
+    def _image_edge(self, image_valid: np.ndarray | None, size: tuple[int, int], scale: float,
+                    work_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """Pixels within one work pixel of where the image ends (frame border or undistortion's black).
 
         An object reaching them may go on outside: its foot or top there is not a measurement.
-        Made once per run (the valid region does not change).
+        At source size, and at work size (a work pixel holding any edge pixel is edge). Made once
+        per run (the valid region does not change).
         """
         if self._edge is not None and self._edge[0] is image_valid and self._edge[1] == size:
             return self._edge[2]
@@ -234,8 +237,9 @@ class ObjectExtractor:
         valid = np.pad(valid, 1)  # outside the frame is not image either
         inner = cv2.erode(valid, cv2.getStructuringElement(cv2.MORPH_RECT, (2 * margin + 1, 2 * margin + 1)))
         edge = ~inner[1:-1, 1:-1].astype(bool)
-        self._edge = (image_valid, size, edge)
-        return edge
+        work_edge = cv2.resize(edge.astype(np.uint8), work_size, interpolation=cv2.INTER_AREA) > 0
+        self._edge = (image_valid, size, (edge, work_edge))
+        return edge, work_edge
 
     def _work_scale(self, src_w: int) -> float:
         if self.config.work_width <= 0 or self.config.work_width >= src_w:
@@ -256,9 +260,9 @@ class ObjectExtractor:
         return above, heights
 
     def _blobs_to_detections(self, candidate: np.ndarray, moving: np.ndarray | None,
-                             work_heights: np.ndarray | None,
+                             grown: np.ndarray | None, work_heights: np.ndarray | None,
                              height_map: np.ndarray | None, scale: float,
-                             edge: np.ndarray) -> list[Detection]:
+                             edge: np.ndarray, work_edge: np.ndarray) -> list[Detection]:
         count, labels, stats, _ = cv2.connectedComponentsWithStats(candidate, connectivity=8)
         min_area_work = self.config.min_area_px * scale * scale
         detections = []
@@ -283,13 +287,15 @@ class ObjectExtractor:
                     if (fg is not None and len(parts) > 1
                             and fg[part].mean() < PART_FOREGROUND_FACTOR * self.config.min_foreground_share):
                         continue
-                    detection = self._piece_to_detection(part, (x, y), height_map, scale, edge)
+                    beyond = (False, False) if grown is None else moving_beyond_ends(part, (x, y), grown,
+                                                                                     work_edge)
+                    detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond)
                     if detection is not None:
                         detections.append(detection)
         return detections
 
     def _piece_to_detection(self, piece: np.ndarray, offset: tuple[int, int], height_map: np.ndarray | None,
-                            scale: float, edge: np.ndarray) -> Detection | None:
+                            scale: float, edge: np.ndarray, beyond: tuple[bool, bool]) -> Detection | None:
         rows, cols = np.nonzero(piece)
         if rows.size == 0:
             return None
@@ -302,7 +308,7 @@ class ObjectExtractor:
         x1 = min(src_w, int(np.ceil((x + w) / scale)))
         y1 = min(src_h, int(np.ceil((y + h) / scale)))
         mask = _resize_mask(piece, (x1 - x0, y1 - y0))
-        return self._measure(mask, height_map, (x0, y0, x1, y1), edge[y0:y1, x0:x1] & mask, scale)
+        return self._measure(mask, height_map, (x0, y0, x1, y1), edge[y0:y1, x0:x1] & mask, scale, beyond)
 
     def _add_consistency_noise(self, detections: list[Detection], packet: FramePacket) -> None:
         """Height consistency: points matched from the last frame keep their height on a rigid object.
@@ -332,14 +338,14 @@ class ObjectExtractor:
                                                           self.config.consistency_gain * residual))
 
     def _measure(self, mask: np.ndarray, height_map: np.ndarray | None, corners: tuple[int, int, int, int],
-                 at_edge: np.ndarray, scale: float) -> Detection | None:
+                 at_edge: np.ndarray, scale: float, beyond: tuple[bool, bool]) -> Detection | None:
         x0, y0, x1, y1 = corners
         box_w, box_h = float(x1 - x0), float(y1 - y0)
         # The object's first and last rows (one work pixel deep) reaching the image edge: top or foot cut.
         band = int(np.ceil(1.0 / scale))
         rows = np.flatnonzero(mask.any(axis=1))
-        top_cut = bool(rows.size and at_edge[rows[0]:rows[0] + band].any())
-        foot_cut = bool(rows.size and at_edge[max(rows[-1] + 1 - band, 0):rows[-1] + 1].any())
+        top_cut = bool(rows.size and at_edge[rows[0]:rows[0] + band].any()) or beyond[0]
+        foot_cut = bool(rows.size and at_edge[max(rows[-1] + 1 - band, 0):rows[-1] + 1].any()) or beyond[1]
         touches_border = bool(at_edge.any())
         height_m, noise_m = float("nan"), float("inf")
         if height_map is not None:
@@ -371,6 +377,40 @@ class ObjectExtractor:
         if touches_border:
             noise *= 3.0              # the top or the foot may be outside the image
         return noise
+
+
+def moving_beyond_ends(part: np.ndarray, offset: tuple[int, int], grown: np.ndarray,
+                       edge: np.ndarray) -> tuple[bool, bool]:
+    """Whether the moving region goes on from the part's top (foot) to the image edge.
+
+    The height map can end before the object does: near the frame's top the network marked a
+    walker's white shirt as ground (Oxford), leaving a blob of legs whose top is no head. When
+    the grown foreground above the blob runs without a gap to the image edge in most of the
+    blob's top columns, the object may go on outside the frame: its top is not measured (and
+    likewise its foot, below).
+    """
+    rows = np.flatnonzero(part.any(axis=1))
+    if rows.size == 0:
+        return False, False
+    x, y = offset
+    top, bottom = y + rows[0], y + rows[-1]
+    top_cols = x + np.flatnonzero(part[rows[0]:rows[0] + 2].any(axis=0))
+    foot_cols = x + np.flatnonzero(part[max(rows[-1] - 1, 0):rows[-1] + 1].any(axis=0))
+    up = _runs_to_edge(grown[:top, top_cols][::-1], edge[:top, top_cols][::-1])
+    down = _runs_to_edge(grown[bottom + 1:, foot_cols], edge[bottom + 1:, foot_cols])
+    return up, down
+
+
+def _runs_to_edge(moving: np.ndarray, edge: np.ndarray) -> bool:
+    """Columns walked from row 0 on: in at least half, the moving run reaches the edge (or the end)."""
+    if moving.shape[1] == 0:
+        return False
+    length = moving.shape[0]
+    if length == 0:
+        return True               # the part ends on the frame's own border
+    first_gap = np.where((~moving).any(axis=0), np.argmax(~moving, axis=0), length)
+    first_edge = np.where(edge.any(axis=0), np.argmax(edge, axis=0), length)
+    return bool(np.mean(first_edge <= first_gap) >= 0.5)
 
 
 def _foot_above_ground(heights: np.ndarray, mask: np.ndarray, rows: np.ndarray, top_m: float) -> bool:

@@ -87,7 +87,8 @@ class _TrackState:
     """Motion state right after the last observation (current frame's coordinates)."""
     last_region: Region | None = None
     """Where the object was in the previous frame, for matched-point votes."""
-    height_rejections: int = 0
+    height_rejections: Counter = field(default_factory=Counter)
+    """Per channel: measurements the height gate rejected in a row."""
 
     @property
     def cls(self) -> str:
@@ -331,12 +332,14 @@ class ObjectTracker:
                 continue
             settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
             if settled and track.height.normalized_residual(height, noise) > self.config.height_gate_sigma:
-                track.height_rejections += 1
-                if track.height_rejections >= HEIGHT_RESTART_AFTER:
+                # Counted per channel: a network accepted every frame must not hide a geometry
+                # channel rejected every frame (a walker born as a 3 m "vehicle" blob).
+                track.height_rejections[channel] += 1
+                if track.height_rejections[channel] >= HEIGHT_RESTART_AFTER:
                     track.height = self.filters.create_height_filter(height, noise, channel)
-                    track.height_rejections = 0
+                    track.height_rejections.clear()
                 continue
-            track.height_rejections = 0
+            track.height_rejections[channel] = 0
             track.height.update(height, noise, channel)
 
     def _start_track(self, detection: Detection) -> None:

@@ -10,7 +10,7 @@ import pytest
 from pipeline.config import GroundConfig, TrackingConfig
 from pipeline.errors import ConfigError
 from pipeline.packets import CameraInfo, Frame, FramePacket
-from stages.object_extraction import ObjectExtractor, coarse_class
+from stages.object_extraction import ObjectExtractor, coarse_class, moving_beyond_ends
 
 WIDTH, HEIGHT = 640, 360
 
@@ -87,6 +87,35 @@ def test_an_object_reaching_the_top_edge_has_no_usable_height():
     walker_at_top = [[]] * 5 + [[(100 + 6 * i, 0, 40, 100, 1.75)] for i in range(10)]
     detection = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walker_at_top).detections[0]
     assert detection.top_cut and not detection.foot_cut and detection.height_noise_m == np.inf
+
+
+def test_a_walker_whose_height_map_ends_below_the_frame_top_has_no_usable_height():
+    """The network called the upper body ground (Oxford: a white shirt at the frame's top): the
+    blob is legs only, but the moving region goes on up to the edge, so its top is no head."""
+    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    walk = [[]] * 5 + [[(100 + 6 * i, 0, 40, 120, 1.75)] for i in range(10)]
+    for index, people in enumerate(walk):
+        image, heights, ground = _scene(index, people)
+        heights[:40, :400] = 0.0
+        ground[:40, :400] = True
+        packet = extractor.process(_packet(index, image, heights, ground))
+    legs = packet.detections[0]
+    assert legs.box[1] >= 30                         # the blob starts below the frame's top
+    assert legs.top_cut and legs.height_noise_m == np.inf
+
+
+def test_moving_beyond_ends_needs_an_unbroken_run_to_the_edge():
+    grown = np.zeros((60, 40), bool)
+    edge = np.zeros((60, 40), bool)
+    edge[0], edge[-1] = True, True
+    part = np.zeros((20, 10), bool)
+    part[:, 2:8] = True                              # at rows 20..39, columns 10..19 of the frame
+    grown[0:20, 10:20] = True                        # moving all the way up
+    assert moving_beyond_ends(part, (10, 20), grown, edge) == (True, False)
+    grown[8, 10:20] = False                          # a gap: the moving thing above is another
+    assert moving_beyond_ends(part, (10, 20), grown, edge) == (False, False)
+    grown[40:60, 10:20] = True                       # moving all the way down
+    assert moving_beyond_ends(part, (10, 20), grown, edge) == (False, True)
 
 
 def test_the_black_border_of_an_undistorted_frame_cuts_like_the_frame_edge():
