@@ -89,6 +89,8 @@ class _TrackState:
     """Where the object was in the previous frame, for matched-point votes."""
     height_rejections: Counter = field(default_factory=Counter)
     """Per channel: measurements the height gate rejected in a row."""
+    height_noise: dict[str, float] = field(default_factory=dict)
+    """Per channel: the noise of its last measurement the height filter took."""
 
     @property
     def cls(self) -> str:
@@ -329,17 +331,22 @@ class ObjectTracker:
         for channel, height, noise in channels:
             if track.height is None:
                 track.height = self.filters.create_height_filter(height, noise, channel)
+                track.height_noise[channel] = noise
                 continue
             settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
             if settled and track.height.normalized_residual(height, noise) > self.config.height_gate_sigma:
                 # Counted per channel: a network accepted every frame must not hide a geometry
-                # channel rejected every frame (a walker born as a 3 m "vehicle" blob).
+                # channel rejected every frame (a walker born as a 3 m "vehicle" blob). Of two
+                # channels that keep disagreeing, the surer one restarts the state, never the
+                # other (no ping-pong between a biased network and the geometry).
                 track.height_rejections[channel] += 1
-                if track.height_rejections[channel] >= HEIGHT_RESTART_AFTER:
+                surest = all(noise <= other for name, other in track.height_noise.items() if name != channel)
+                if track.height_rejections[channel] >= HEIGHT_RESTART_AFTER and surest:
                     track.height = self.filters.create_height_filter(height, noise, channel)
                     track.height_rejections.clear()
                 continue
             track.height_rejections[channel] = 0
+            track.height_noise[channel] = noise
             track.height.update(height, noise, channel)
 
     def _start_track(self, detection: Detection) -> None:

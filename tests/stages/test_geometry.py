@@ -15,7 +15,7 @@ from pipeline.errors import SourceError
 from pipeline.packets import CameraInfo, Detection, Frame, FramePacket
 from stages.calibration import (camera_for_run, camera_from_pose, heights_from_foot_top, intrinsics_from_fov,
                                 load_calibration, project_points, undistort_pixels)
-from stages.geometry import SCALE_MIN_SAMPLES, GeometryMeasurer
+from stages.geometry import NETWORK_PRIOR_SCALE_NOISE, SCALE_MIN_SAMPLES, GeometryMeasurer
 from stages.undistortion import Undistorter
 
 SHARED_REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real"
@@ -266,8 +266,11 @@ def test_network_heights_are_rescaled_by_their_ratio_to_geometry_on_people():
         measurer.process(packet_with(camera, people + [cut, car]))
         if frame < SCALE_MIN_SAMPLES - 1:
             assert cut.height_m == pytest.approx(0.7 * 1.8)           # too few ratios yet: untouched
+            # ... but as unsure as an unknown scale makes it (half its height), not 0.15 m.
+            assert cut.height_noise_m == pytest.approx(np.hypot(0.15, NETWORK_PRIOR_SCALE_NOISE * 0.7 * 1.8))
     assert measurer.network_scale.scale == pytest.approx(1 / 0.7, rel=0.02)
     assert cut.geometry_height_m is None and cut.height_m == pytest.approx(1.8, rel=0.02)
+    # The scale is known now (every person read 0.7x): back to the base noise, rescaled.
     assert cut.height_noise_m == pytest.approx(0.15 / 0.7, rel=0.02)
 
 

@@ -258,18 +258,21 @@ def test_one_wild_height_does_not_move_a_settled_track():
 
 
 def test_a_geometry_channel_rejected_every_frame_restarts_a_height_born_wrong():
-    """Born from a merged blob (network 3.0 m), then the network reads 2.9 m and the geometry 1.8 m.
+    """Born from a merged blob the network reads 3.0 m (no geometry: feet hidden), then the
+    network reads 2.5 m and the geometry 1.8 m.
 
     The network is accepted every frame; the geometry, rejected every frame, must still win:
     rejections are counted per channel (Oxford: a walker held 2.4 m against 1.8 m geometry).
     """
     tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
-    tracks = tracker.update([_detection(10, 10, 3.0, noise_m=0.2)])
-    for frame in range(1, 40):
-        detection = _detection(10 + 2 * frame, 10, 2.9, noise_m=0.2)
+    for frame in range(6):
+        tracks = tracker.update([_detection(10 + frame, 10, 3.0, noise_m=0.2)])
+    for frame in range(6, 40):
+        detection = _detection(10 + frame, 10, 2.5, noise_m=0.2)
         detection.geometry_height_m, detection.geometry_noise_m = 1.80, 0.04
         tracks = tracker.update([detection])
-    assert tracks[0].height_m == pytest.approx(1.80, abs=0.15)
+    assert len(tracks) == 1 and tracks[0].height_source == "fused"
+    assert tracks[0].height_m == pytest.approx(1.80, abs=0.1)
 
 
 def test_matched_points_vote_for_the_blob_that_continues_a_track():
