@@ -17,9 +17,10 @@ One frame, in order:
    observation (OC-SORT's observation-centric re-update), so the velocity that drifted while
    it was hidden does not carry on.
 6. Height: the network's single-frame height and, where the camera is calibrated, the geometry
-   height are fused into the height filter (for walkers each channel goes through the upper
-   quantile of a short window: stature, not the gait's mean dip nor a blob that lost its feet
-   or head for a frame); outliers beyond ``height_gate_sigma`` are skipped.
+   height are fused into the height filter (for walkers the network's heights go through the
+   upper quantile of a short window: stature, not the gait's mean dip nor a blob that lost its
+   feet or head for a frame); outliers beyond ``height_gate_sigma`` are skipped, and a channel
+   rejected again and again restarts the height if it is the surer one.
 7. Tracks are confirmed after ``min_hits`` hits in a row (and ``confirm_s`` seconds of them)
    and dropped after ``max_misses`` frames without a hit (and ``max_miss_s`` seconds): durations,
    so that a 25 fps camera and a 10 fps one behave alike. A tentative track is dropped at its
@@ -71,8 +72,6 @@ class _TrackState:
     height: HeightFilter | None
     stature: StatureWindow
     """Recent network heights of a walker (see ``StatureWindow``)."""
-    geometry_stature: StatureWindow
-    """The same for its geometry heights."""
     hits: int = 1
     hit_streak: int = 1
     misses: int = 0
@@ -325,8 +324,9 @@ class ObjectTracker:
         if geometry_trusted and _usable(detection.geometry_height_m, detection.geometry_noise_m):
             height = detection.geometry_height_m
             noise = detection.geometry_noise_m * (TOP_LOST_NOISE_FACTOR if top_lost else 1.0)
-            if self.config.stature_window > 0 and track.cls in WALKER_CLASSES:
-                height = track.geometry_stature.add(height, noise)
+            # No stature window here: box points wobble ~20 px (Oxford, against labels) under a
+            # stated 2 px, so a window's upper quantile picks the boxes that overshoot, not the
+            # top of the gait (Oxford: mean 1.81 -> 1.80 m, median error 4.5 -> 3.8 cm without).
             channels.append(("geometry", height, noise))
         for channel, height, noise in channels:
             if track.height is None:
@@ -355,7 +355,6 @@ class ObjectTracker:
             motion=self.filters.create_motion_filter(detection.box),
             height=None,
             stature=StatureWindow(self.config.stature_window, self.config.stature_quantile),
-            geometry_stature=StatureWindow(self.config.stature_window, self.config.stature_quantile),
             class_votes=Counter({detection.cls: 1}),
             ground_xy_m=detection.ground_xy_m,
             last_observation=detection.box,
