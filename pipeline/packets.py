@@ -84,6 +84,9 @@ class Detection:
     geometry_height_m: float | None = None
     """Second measurement: height from foot and top points through the calibrated camera."""
     geometry_noise_m: float | None = None
+    geometry_min_height_m: float | None = None
+    """Lower bound on the height when the foot is cut or hidden: the true foot lies lower in the
+    image, nearer the camera, where the top's ray stands higher (calibrated cameras only)."""
     ground_xy_m: tuple[float, float] | None = None
     """Foot point on the ground plane in world metres (calibrated cameras only)."""
     mask: np.ndarray | None = None

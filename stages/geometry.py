@@ -7,6 +7,11 @@ network's height, so its noise must be honest: pixel noise of the two points pro
 the geometry, the camera-height uncertainty of a self-calibrated camera, and for long objects
 the error of assuming the top is above the foot.
 
+An object whose foot is cut off (by the frame's edge, or hidden) still gets a lower bound: its
+true foot lies lower in the image, nearer the camera, where the top's ray stands higher. The
+tracker raises a network height below it (Oxford: a walker leaving at the bottom corner read
+1.47 m by the network alone, against a bound of up to 1.70 m).
+
 It also checks the network's scale: on whole people, the median ratio of geometry to network
 height over the run so far says how far the network reads off in this scene (the shipped model
 reads about 0.7x on real footage), and every network height is multiplied by it, so objects
@@ -86,6 +91,9 @@ class GeometryMeasurer:
             if foot_ok[i] and np.all(np.isfinite(ground[i])):
                 detection.ground_xy_m = (float(ground[i, 0]), float(ground[i, 1]))
             height = heights[i]
+            if not foot_ok[i] and np.isfinite(height) and 0.0 < height < camera.height_m:
+                # The top's ray descends (it is below the horizon): a nearer foot means a taller object.
+                detection.geometry_min_height_m = float(height)
             if not (whole[i] and np.isfinite(height) and np.isfinite(noise[i])
                     and PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]):
                 continue

@@ -19,8 +19,9 @@ One frame, in order:
 6. Height: the network's single-frame height and, where the camera is calibrated, the geometry
    height are fused into the height filter (for walkers the network's heights go through the
    upper quantile of a short window: stature, not the gait's mean dip nor a blob that lost its
-   feet or head for a frame); outliers beyond ``height_gate_sigma`` are skipped, and a channel
-   rejected again and again restarts the height if it is the surer one.
+   feet or head for a frame); a network height below the geometry's lower bound (feet cut off)
+   is raised to it; outliers beyond ``height_gate_sigma`` are skipped, and a channel whose run
+   of rejections outweighs the state restarts it.
 7. Tracks are confirmed after ``min_hits`` hits in a row (and ``confirm_s`` seconds of them)
    and dropped after ``max_misses`` frames without a hit (and ``max_miss_s`` seconds): durations,
    so that a 25 fps camera and a 10 fps one behave alike. A tentative track is dropped at its
@@ -86,10 +87,8 @@ class _TrackState:
     """Motion state right after the last observation (current frame's coordinates)."""
     last_region: Region | None = None
     """Where the object was in the previous frame, for matched-point votes."""
-    height_rejections: Counter = field(default_factory=Counter)
-    """Per channel: measurements the height gate rejected in a row."""
-    height_noise: dict[str, float] = field(default_factory=dict)
-    """Per channel: the noise of its last measurement the height filter took."""
+    height_rejections: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    """Per channel: (height, noise) of the measurements the height gate rejected in a row."""
 
     @property
     def cls(self) -> str:
@@ -310,8 +309,11 @@ class ObjectTracker:
     def _update_height(self, track: _TrackState, detection: Detection, top_lost: bool) -> None:
         """Fold in the network height, then the geometry height (sequential update)."""
         channels = []
+        geometry_trusted = track.cls not in GEOMETRY_ONLY_AS_FALLBACK
         if _usable(detection.height_m, detection.height_noise_m):
             height, noise = detection.height_m, detection.height_noise_m
+            if geometry_trusted and detection.geometry_min_height_m is not None:
+                height = max(height, detection.geometry_min_height_m)   # the foot is cut: a bound
             if top_lost:
                 noise *= TOP_LOST_NOISE_FACTOR
             if self.config.stature_window > 0 and track.cls in WALKER_CLASSES:
@@ -320,7 +322,7 @@ class ObjectTracker:
         # Geometry assumes the top lies above the foot. For vehicles the blob's top is the far
         # roof edge, metres behind the foot, and on generator data their geometry heights came out
         # ~0.8 m high (median): used for them only when the network gives no height at all.
-        geometry_trusted = track.cls not in GEOMETRY_ONLY_AS_FALLBACK or not channels
+        geometry_trusted = geometry_trusted or not channels
         if geometry_trusted and _usable(detection.geometry_height_m, detection.geometry_noise_m):
             height = detection.geometry_height_m
             noise = detection.geometry_noise_m * (TOP_LOST_NOISE_FACTOR if top_lost else 1.0)
@@ -331,23 +333,36 @@ class ObjectTracker:
         for channel, height, noise in channels:
             if track.height is None:
                 track.height = self.filters.create_height_filter(height, noise, channel)
-                track.height_noise[channel] = noise
                 continue
             settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
             if settled and track.height.normalized_residual(height, noise) > self.config.height_gate_sigma:
-                # Counted per channel: a network accepted every frame must not hide a geometry
-                # channel rejected every frame (a walker born as a 3 m "vehicle" blob). Of two
-                # channels that keep disagreeing, the surer one restarts the state, never the
-                # other (no ping-pong between a biased network and the geometry).
-                track.height_rejections[channel] += 1
-                surest = all(noise <= other for name, other in track.height_noise.items() if name != channel)
-                if track.height_rejections[channel] >= HEIGHT_RESTART_AFTER and surest:
-                    track.height = self.filters.create_height_filter(height, noise, channel)
+                rejected = track.height_rejections.setdefault(channel, [])
+                rejected.append((height, noise))
+                if self._outweighs(rejected, track.height):
+                    track.height = self._height_from(rejected, channel)
                     track.height_rejections.clear()
                 continue
-            track.height_rejections[channel] = 0
-            track.height_noise[channel] = noise
+            track.height_rejections.pop(channel, None)
             track.height.update(height, noise, channel)
+
+    def _outweighs(self, rejected: list[tuple[float, float]], height: HeightFilter) -> bool:
+        """A run of rejections that says more than the state: the state was built on outliers.
+
+        Counted per channel (a network accepted every frame must not hide a geometry channel
+        rejected every frame: a walker born as a 3 m "vehicle" blob), and weighed by information
+        (sum of 1/noise^2 against 1/variance): eight frames of a box overshooting do not undo forty
+        frames of a settled height, nor does a noisy network undo a geometry-made one.
+        """
+        information = sum(1.0 / noise ** 2 for _, noise in rejected)
+        return len(rejected) >= HEIGHT_RESTART_AFTER and information > 1.0 / height.std_m ** 2
+
+    def _height_from(self, measurements: list[tuple[float, float]], channel: str) -> HeightFilter:
+        """A fresh height filter made of these measurements of one channel."""
+        (first, first_noise), rest = measurements[0], measurements[1:]
+        height = self.filters.create_height_filter(first, first_noise, channel)
+        for value, noise in rest:
+            height.update(value, noise, channel)
+        return height
 
     def _start_track(self, detection: Detection) -> None:
         track = _TrackState(

@@ -144,6 +144,25 @@ def _person_at(camera, x, y, height_m):
     return detection(foot, top)
 
 
+def test_a_person_whose_feet_are_below_the_frame_gets_a_lower_bound():
+    """Feet below the frame's bottom edge: the blob's lowest point is farther away than the feet,
+    so the height through it is too low, never too high; whole people get no bound."""
+    camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 5.0, 30.0)
+    bounds = []
+    for x, y in [(0.0, 2.5), (0.0, 3.0), (0.0, 3.5)]:   # less and less of the person cut off
+        cut = _person_at(camera, x, y, 1.80)
+        assert cut.foot_xy[1] > 480                      # the feet are out of the frame
+        cut.foot_xy = (cut.foot_xy[0], 479.5)            # the blob ends at the frame's edge
+        cut.foot_cut = True
+        whole = _person_at(camera, x, y + 4.0, 1.80)
+        GeometryMeasurer(CameraConfig()).process(packet_with(camera, [cut, whole]))
+        assert cut.geometry_height_m is None
+        assert 0.0 < cut.geometry_min_height_m < 1.80
+        assert whole.geometry_min_height_m is None and whole.geometry_height_m == pytest.approx(1.80, abs=0.01)
+        bounds.append(cut.geometry_min_height_m)
+    assert bounds == sorted(bounds) and bounds[-1] > 1.5     # the bound tightens as less is cut
+
+
 def test_pixel_noise_is_propagated_honestly():
     """The stage's pixel-noise std agrees with a Monte Carlo of +-point_noise_px on both points."""
     camera = camera_from_pose(1280, 720, intrinsics_from_fov(1280, 720, 60), 6.0, 25.0, 1.0)

@@ -275,6 +275,34 @@ def test_a_geometry_channel_rejected_every_frame_restarts_a_height_born_wrong():
     assert tracks[0].height_m == pytest.approx(1.80, abs=0.1)
 
 
+def test_a_settled_height_outweighs_a_short_run_of_overshooting_boxes():
+    """Forty frames at 1.80 m, then ten whose boxes overshoot (2.10 m, rejected by the gate):
+    the run says less than the state, so the height stays (a count alone restarted it)."""
+    tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
+    for frame in range(50):
+        detection = _detection(10 + frame, 10, float("nan"), noise_m=float("inf"))
+        detection.geometry_height_m = 1.80 if frame < 40 else 2.10
+        detection.geometry_noise_m = 0.04
+        tracks = tracker.update([detection])
+    assert tracks[0].height_m == pytest.approx(1.80, abs=0.02)
+
+
+def test_a_network_height_below_the_geometry_bound_is_raised_to_it():
+    """Feet out of the frame: the network reads 1.4 m, the geometry says at least 1.7 m."""
+    tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
+    for frame in range(20):
+        detection = _detection(10 + frame, 10, 1.40, noise_m=0.1)
+        detection.geometry_min_height_m = 1.70
+        tracks = tracker.update([detection])
+    assert tracks[0].height_m == pytest.approx(1.70, abs=0.01)
+    vehicle = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
+    for frame in range(20):                 # a vehicle's top is its far roof edge: no bound
+        detection = _detection(10 + frame, 10, 1.40, w=120, h=60, noise_m=0.1, cls="vehicle")
+        detection.geometry_min_height_m = 1.70
+        tracks = vehicle.update([detection])
+    assert tracks[0].height_m == pytest.approx(1.40, abs=0.01)
+
+
 def test_matched_points_vote_for_the_blob_that_continues_a_track():
     """Two candidate blobs overlap the prediction equally; the matched points decide."""
     tracker = ObjectTracker(TrackingConfig(min_hits=1))
