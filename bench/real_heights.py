@@ -16,6 +16,7 @@ of the tracks' head-top and foot points (top and bottom centre of the track box)
 labelled points, in the frame the run worked in (undistorted where it undistorted).
 
     python -m bench.real_heights [--modes calibration,camera-height,self] [--out runs/real_heights]
+                                 [--picture docs/oxford_heights.jpg [--picture-frame 60]]
 """
 
 from __future__ import annotations
@@ -172,6 +173,44 @@ def run_mode(mode: str, out: Path, overrides: list[str]) -> ModeResult:
     return result
 
 
+def draw_frame(tracks_csv: Path, frame_index: int, out: Path) -> None:
+    """One undistorted frame of a calibrated run: person tracks with their heights, labelled points.
+
+    Green boxes are people inside 1.5-2.1 m, red ones outside, grey ones without a height; the
+    labelled head-top and foot points are white crosses.
+    """
+    import cv2
+
+    from stages.calibration import load_calibration
+    from stages.undistortion import Undistorter
+
+    capture = cv2.VideoCapture(str(VIDEO))
+    capture.set(cv2.CAP_PROP_POS_FRAMES, frame_index)
+    ok, image = capture.read()
+    capture.release()
+    if not ok:
+        raise SystemExit(f"bench.real_heights: cannot read frame {frame_index} of {VIDEO}")
+    image = Undistorter(load_calibration(CALIBRATION)).undistort(image)
+    for person in load_labels(undistort=True).get(frame_index, []):
+        for u, v in (person.head, person.foot):
+            cv2.drawMarker(image, (int(u), int(v)), (255, 255, 255), cv2.MARKER_CROSS, 18, 2)
+    for row in read_tracks(tracks_csv).get(frame_index, []):
+        if row["class"] != "person":
+            continue
+        x, y, w, h = (int(float(row[k])) for k in ("x", "y", "w", "h"))
+        height = float(row["height_m"])
+        inside = PERSON_RANGE_M[0] <= height <= PERSON_RANGE_M[1]
+        colour = (128, 128, 128) if not np.isfinite(height) else (0, 200, 0) if inside else (0, 0, 255)
+        cv2.rectangle(image, (x, y), (x + w, y + h), colour, 3)
+        text = "no height" if not np.isfinite(height) else f"{height:.2f} m {row['height_source']}"
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 1.1, 2)
+        ty = max(y - 10, th + 10)
+        cv2.rectangle(image, (x, ty - th - 8), (x + tw + 8, ty + 6), (0, 0, 0), -1)
+        cv2.putText(image, text, (x + 4, ty), cv2.FONT_HERSHEY_SIMPLEX, 1.1, colour, 2)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out), cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
+
+
 def format_table(results: list[ModeResult]) -> str:
     lines = ["| mode | person tracks | mean (m) | min-max (m) | outside 1.5-2.1 | matched | "
              "median error (cm) | head px | foot px | note |", "|---" * 10 + "|"]
@@ -188,12 +227,17 @@ def main() -> int:
     parser.add_argument("--out", default="runs/real_heights", type=Path)
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="config override for every run (repeatable)")
+    parser.add_argument("--picture", type=Path, metavar="IMAGE",
+                        help="also draw one frame of the calibration-mode run (tracks, heights, labels)")
+    parser.add_argument("--picture-frame", type=int, default=60)
     args = parser.parse_args()
     if not VIDEO.is_file():
         print(f"bench.real_heights: {VIDEO} not found", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     results = [run_mode(mode, args.out, args.set) for mode in args.modes.split(",")]
+    if args.picture and "calibration" in args.modes.split(","):
+        draw_frame(args.out / "calibration.tracks.csv", args.picture_frame, args.picture)
     table = format_table(results)
     (args.out / "table.md").write_text(table + "\n")
     print(table)
