@@ -45,8 +45,8 @@ from stages.kalman import FilterFactory, HeightFilter, MotionFilter, MotionSnaps
 # of the gate, the height term the squared height difference in units of the gate.
 MOTION_WEIGHT = 0.3
 HEIGHT_WEIGHT = 0.5
-# A height filter is trusted to reject outliers only after this many measurements; after this
-# many rejections in a row it is restarted (the first measurements were the outliers).
+# A height filter is trusted to reject outliers only after this many measurements; a run of at
+# least this many rejections of one channel restarts it, if the run outweighs it (``_outweighs``).
 HEIGHT_GATE_AFTER = 5
 HEIGHT_RESTART_AFTER = 8
 # A detection whose top edge lies this share of the box height below the predicted top has
