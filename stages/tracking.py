@@ -87,6 +87,8 @@ class _TrackState:
     """Motion state right after the last observation (current frame's coordinates)."""
     last_region: Region | None = None
     """Where the object was in the previous frame, for matched-point votes."""
+    height_geometry_trusted: bool = True
+    """Whether the class at the last height update let the geometry in (see ``_update_height``)."""
     height_rejections: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     """Per channel: (height, noise) of the measurements the height gate rejected in a row."""
 
@@ -310,6 +312,13 @@ class ObjectTracker:
         """Fold in the network height, then the geometry height (sequential update)."""
         channels = []
         geometry_trusted = track.cls not in GEOMETRY_ONLY_AS_FALLBACK
+        if (not geometry_trusted and track.height_geometry_trusted and track.height is not None
+                and track.height.updates.get("geometry", 0) > 0):
+            # Geometry went in while the track passed for a person or cyclist; as a vehicle its
+            # geometry height is the far roof edge's: start again from this frame's measurements.
+            track.height = None
+            track.height_rejections.clear()
+        track.height_geometry_trusted = geometry_trusted
         if _usable(detection.height_m, detection.height_noise_m):
             height, noise = detection.height_m, detection.height_noise_m
             if geometry_trusted and detection.geometry_min_height_m is not None:

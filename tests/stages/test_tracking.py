@@ -303,6 +303,19 @@ def test_a_network_height_below_the_geometry_bound_is_raised_to_it():
     assert tracks[0].height_m == pytest.approx(1.40, abs=0.01)
 
 
+def test_a_track_that_turns_out_a_vehicle_drops_the_geometry_it_took_as_a_cyclist():
+    """A car first boxed like a cyclist: its geometry (the far roof edge, 3.1 m) went in; once the
+    votes make it a vehicle its height starts again from the network (1.5 m)."""
+    tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
+    for frame in range(30):
+        cls = "cyclist" if frame < 6 else "vehicle"
+        detection = _detection(10 + 2 * frame, 10, 1.50, w=60, h=50, noise_m=0.6, cls=cls)
+        detection.geometry_height_m, detection.geometry_noise_m = 3.10, 0.14
+        tracks = tracker.update([detection])
+    assert tracks[0].cls == "vehicle"
+    assert tracks[0].height_m == pytest.approx(1.50, abs=0.1)
+
+
 def test_matched_points_vote_for_the_blob_that_continues_a_track():
     """Two candidate blobs overlap the prediction equally; the matched points decide."""
     tracker = ObjectTracker(TrackingConfig(min_hits=1))
