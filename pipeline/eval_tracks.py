@@ -27,7 +27,7 @@ import json
 import sys
 import time
 from collections import defaultdict
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -191,7 +191,9 @@ def build_eval_stages(sequence, config: Config, heights: str, geometry: bool) ->
     if geometry:
         from stages.geometry import GeometryMeasurer
 
-        stages.append(("geometry", GeometryMeasurer(config.camera)))
+        # True heights are metric: there is no network scale to learn (nor to doubt).
+        camera = replace(config.camera, rescale_network=False) if heights == "oracle" else config.camera
+        stages.append(("geometry", GeometryMeasurer(camera)))
     stages.append(("tracking", TrackingStage(config.tracking)))
     return stages
 
