@@ -303,6 +303,18 @@ def test_a_network_height_below_the_geometry_bound_is_raised_to_it():
     assert tracks[0].height_m == pytest.approx(1.40, abs=0.01)
 
 
+def test_a_walkers_geometry_heights_are_averaged_not_windowed():
+    """Box-based geometry heights wobble with the box (here 1.7 / 1.9 m), far more than their
+    stated noise: an upper quantile would pick the overshooting boxes (1.87 m), not the stature."""
+    tracker = ObjectTracker(TrackingConfig(min_hits=1))
+    for frame in range(40):
+        detection = _detection(10 + 2 * frame, 10, float("nan"), noise_m=float("inf"))
+        detection.geometry_height_m = 1.70 if frame % 2 else 1.90
+        detection.geometry_noise_m = 0.04
+        tracks = tracker.update([detection])
+    assert tracks[0].cls == "person" and tracks[0].height_m == pytest.approx(1.80, abs=0.02)
+
+
 def test_a_track_that_turns_out_a_vehicle_drops_the_geometry_it_took_as_a_cyclist():
     """A car first boxed like a cyclist: its geometry (the far roof edge, 3.1 m) went in; once the
     votes make it a vehicle its height starts again from the network (1.5 m)."""
