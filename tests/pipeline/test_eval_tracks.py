@@ -86,3 +86,12 @@ def test_height_errors_tracked_vs_single_frame_and_occlusion():
     assert report["occlusions"] == occlusion_events(_run(frames), 0.3, 5)
     (event,) = report["occlusions"]
     assert event["kept_id"] and event["hidden_frames"] == 10
+
+
+def test_true_heights_learn_no_network_scale():
+    """True height maps are metric: the geometry stage must not rescale them, nor doubt their scale."""
+    from pipeline.config import Config
+    from pipeline.eval_tracks import build_eval_stages
+
+    stages = dict(build_eval_stages(object(), Config(), "oracle", geometry=True))
+    assert stages["geometry"].network_scale is None
