@@ -159,8 +159,9 @@ class ObjectExtractor:
         if moving is None:
             candidate = above
         elif above is None:
-            # No height map to fill holes: close them with the same growth, then shrink back.
-            candidate = cv2.morphologyEx(moving.astype(np.uint8), cv2.MORPH_CLOSE, self.grow_kernel)
+            # No height map to fill holes: close them with the same growth, then shrink back
+            # (eroding the grown foreground is that closing).
+            candidate = cv2.erode(grown.astype(np.uint8), self.grow_kernel)
         else:
             # Foreground grown by a few pixels: flat-coloured parts of an object (a car roof, a
             # plain coat) drop out of the background model; the height map fills them back in.

@@ -331,8 +331,8 @@ class ObjectTracker:
         # Geometry assumes the top lies above the foot. For vehicles the blob's top is the far
         # roof edge, metres behind the foot, and on generator data their geometry heights came out
         # ~0.8 m high (median): used for them only when the network gives no height at all.
-        geometry_trusted = geometry_trusted or not channels
-        if geometry_trusted and _usable(detection.geometry_height_m, detection.geometry_noise_m):
+        use_geometry = geometry_trusted or not channels
+        if use_geometry and _usable(detection.geometry_height_m, detection.geometry_noise_m):
             height = detection.geometry_height_m
             noise = detection.geometry_noise_m * (TOP_LOST_NOISE_FACTOR if top_lost else 1.0)
             # No stature window here: box points wobble ~20 px (Oxford, against labels) under a
