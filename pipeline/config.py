@@ -94,6 +94,8 @@ class TrackingConfig:
     """Blobs whose top is higher than this are scenery (buildings, trees), not movers (a bus is ~3.5 m)."""
     min_foreground_share: float = 0.4
     """Blobs less than this share foreground are clutter (rain or leaves over a static structure)."""
+    min_foreground_piece_px: int = 8
+    """Foreground pieces smaller than this (source pixels) are sensor noise, dropped before blobs are grown."""
     min_hits: int = 2
     """Detections in a row before a track is confirmed (reported), at least ..."""
     confirm_s: float = 0.2
