@@ -535,7 +535,7 @@ def height_summary(objects: list[ObjectHeight], min_frames: int) -> dict:
 # --------------------------------------------------------------------------------------------
 
 def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames: int) -> list[dict]:
-    """Objects visible, then hidden (visibility < 0.1) for a while, then visible again."""
+    """Objects tracked, then hidden (visibility < 0.1) for a while, then tracked again: same id?"""
     from scipy.optimize import linear_sum_assignment
 
     history: dict[int, list[tuple[int, float, int | None, float | None]]] = defaultdict(list)
@@ -565,7 +565,9 @@ def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames:
                                    "id_after": track_id, "kept_id": before[0] == track_id,
                                    "height_before_m": before[1], "height_after_m": height})
                 before = (track_id, height)
-            hidden_run = 0 if visibility >= 0.1 else hidden_run
+                # Only a match ends the occlusion: an object seen again but not yet re-found
+                # (or found by a new track only later) is still an event, kept or not.
+                hidden_run = 0
     return events
 
 

@@ -88,6 +88,19 @@ def test_height_errors_tracked_vs_single_frame_and_occlusion():
     assert event["kept_id"] and event["hidden_frames"] == 10
 
 
+def test_an_occlusion_re_found_late_by_a_new_track_counts_as_lost():
+    """Seen again but not re-found at once, then picked up by a new track: a lost id, not no event
+    (the count used to restart at the first visible frame and missed exactly these)."""
+    frames = []
+    for i in range(40):
+        visibility = 0.0 if 10 <= i < 30 else (0.2 if i == 30 else 1.0)
+        outs = [_out(5, 10 + 2 * i)] if i < 10 else ([_out(6, 10 + 2 * i)] if i >= 33 else [])
+        frames.append(FrameRecord([_truth(1, 10 + 2 * i, visibility=visibility)], outs, []))
+    (event,) = occlusion_events(_run(frames), 0.3, 5)
+    assert not event["kept_id"] and (event["id_before"], event["id_after"]) == (5, 6)
+    assert event["hidden_frames"] == 20
+
+
 def test_true_heights_learn_no_network_scale():
     """True height maps are metric: the geometry stage must not rescale them, nor doubt their scale."""
     from pipeline.config import Config
