@@ -102,8 +102,8 @@ class TrackingConfig:
     """... and at least this long in source time (10 fps: 2 detections, 25 fps: 5)."""
     max_misses: int = 30
     """Frames without a detection before a track is deleted, at least ..."""
-    max_miss_s: float = 3.0
-    """... and at least this long in source time (10 fps: 30 frames, 25 fps: 75)."""
+    max_miss_s: float = 4.0
+    """... and at least this long in source time (10 fps: 40 frames, 25 fps: 100)."""
     iou_gate: float = 0.1
     """Minimum IoU for an association."""
     height_process_noise_m: float = 0.002

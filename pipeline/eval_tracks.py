@@ -534,11 +534,16 @@ def height_summary(objects: list[ObjectHeight], min_frames: int) -> dict:
 # Occlusions: hidden for a while, seen again
 # --------------------------------------------------------------------------------------------
 
-def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames: int) -> list[dict]:
-    """Objects tracked, then hidden (visibility < 0.1) for a while, then tracked again: same id?"""
+def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames: int,
+                     min_box_px: float = 0.0) -> list[dict]:
+    """Objects tracked, then hidden (visibility < 0.1) for a while, then tracked again: same id?
+
+    Before and after, the object must be required as the MOT metrics require it (``cared_for``):
+    a car a few pixels high on the horizon is don't-care there, and no occlusion event here.
+    """
     from scipy.optimize import linear_sum_assignment
 
-    history: dict[int, list[tuple[int, float, int | None, float | None]]] = defaultdict(list)
+    history: dict[int, list[tuple[int, float, bool, int | None, float | None]]] = defaultdict(list)
     for index, frame in enumerate(run.frames):
         outputs = [o for o in frame.tracks if o.updated]
         matched: dict[int, OutputBox] = {}
@@ -549,16 +554,16 @@ def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames:
                     matched[frame.truth[r].object_id] = outputs[c]
         for t in frame.truth:
             out = matched.get(t.object_id)
-            history[t.object_id].append((index, t.visibility, out.track_id if out else None,
-                                         out.height_m if out else None))
+            history[t.object_id].append((index, t.visibility, cared_for(t, min_visibility, min_box_px),
+                                         out.track_id if out else None, out.height_m if out else None))
     events = []
     for object_id, rows in history.items():
         hidden_run, before = 0, None
-        for index, visibility, track_id, height in rows:
+        for index, visibility, required, track_id, height in rows:
             if visibility < 0.1:
                 hidden_run += 1
                 continue
-            if visibility >= min_visibility and track_id is not None:
+            if required and track_id is not None:
                 if hidden_run >= min_hidden_frames and before is not None:
                     events.append({"sequence": run.name, "object_id": object_id,
                                    "hidden_frames": hidden_run, "id_before": before[0],
@@ -579,7 +584,8 @@ def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: i
              use_trackeval: bool | None = None, min_box_px: float = 0.0) -> dict:
     datas = [mot_data(run, min_visibility, min_box_px) for run in runs]
     objects = [o for run in runs for o in object_heights(run, min_visibility, min_box_px)]
-    events = [e for run in runs for e in occlusion_events(run, min_visibility, min_hidden_frames=5)]
+    events = [e for run in runs for e in occlusion_events(run, min_visibility, min_hidden_frames=5,
+                                                          min_box_px=min_box_px)]
     by_class = {cls: height_summary([o for o in objects if o.cls == cls], min_frames)
                 for cls in sorted({o.cls for o in objects})}
     by_camera = {f"{h:.1f}": height_summary([o for o in objects if round(o.camera_height_m, 1) == h], min_frames)

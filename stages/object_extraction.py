@@ -81,7 +81,13 @@ MIN_CONSISTENCY_POINTS = 3
 
 
 def make_background_subtractor(method: str):
-    """OpenCV background subtractor by name (None for 'none')."""
+    """OpenCV background subtractor by name (None for 'none').
+
+    KNN and MOG2 draw from OpenCV's process-wide random generator: it is seeded here, so that a
+    run's foreground does not depend on what ran before it in the same process (eval-tracks
+    over many sequences, a batch worker's second file).
+    """
+    cv2.setRNGSeed(0)
     if method == "mog2":
         return cv2.createBackgroundSubtractorMOG2(history=500, varThreshold=16, detectShadows=True)
     if method == "knn":

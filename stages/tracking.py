@@ -12,7 +12,8 @@ One frame, in order:
    of the box and the height difference; pairs outside the motion gate, or with neither
    overlap nor votes, are not allowed.
 4. Second chance (OC-SORT's observation-centric recovery): tracks left over are matched on
-   the IoU of their *last observed* box, which does not drift while the object is hidden.
+   the IoU of their *last observed* box, which does not drift while the object is hidden, or
+   of their predicted box grown by a buffer that widens with every frame missed (C-BIoU).
 5. A track seen again after a gap is re-updated along a straight virtual path from its last
    observation (OC-SORT's observation-centric re-update), so the velocity that drifted while
    it was hidden does not carry on.
@@ -60,6 +61,12 @@ WALKER_CLASSES = ("person",)
 # A track not seen this frame whose predicted box has less than this share inside the image has
 # left the view: it is dropped instead of coasting on outside the frame.
 MIN_SHARE_IN_VIEW = 0.25
+# Second-chance association on the predicted box: a buffer of this share of the box per frame
+# the track was missed, at most this share (C-BIoU uses 0.3 and 0.5 buffers), for boxes whose
+# heights differ by less than this factor (Oxford: a coasting track took half a walker 60 px off).
+RECOVERY_BUFFER_PER_MISS = 0.05
+RECOVERY_MAX_BUFFER = 0.5
+RECOVERY_MAX_SIZE_RATIO = 1.5
 # Classes whose geometry height only stands in when the network has none (see _update_height).
 GEOMETRY_ONLY_AS_FALLBACK = ("vehicle",)
 
@@ -251,8 +258,21 @@ class ObjectTracker:
                       and self.tracks[r].confirmed]
         if not candidates or not detection_cols:
             return ([], track_rows), ([], detection_cols)
-        iou = iou_matrix([self.tracks[r].last_observation for r in candidates],
-                         [detections[c].box for c in detection_cols])
+        boxes = [detections[c].box for c in detection_cols]
+        iou = iou_matrix([self.tracks[r].last_observation for r in candidates], boxes)
+        # Or where the prediction went, with a buffer that grows while the object stays hidden
+        # (C-BIoU): a walker's speed estimate is a few per cent off, and over a 2 s occlusion
+        # that put the prediction most of a box width away from where the walker came out.
+        # A buffer forgives position, not size: the box must stand about as tall as the track's.
+        box_heights = np.array([b[3] for b in boxes], dtype=float)
+        for i, r in enumerate(candidates):
+            track = self.tracks[r]
+            buffer = min(RECOVERY_BUFFER_PER_MISS * track.misses, RECOVERY_MAX_BUFFER)
+            if buffer > 0:
+                buffered = iou_matrix([_buffered(track.motion.box, buffer)], [_buffered(b, buffer) for b in boxes])[0]
+                ratio = box_heights / max(track.motion.box[3], 1e-9)
+                alike = (ratio >= 1 / RECOVERY_MAX_SIZE_RATIO) & (ratio <= RECOVERY_MAX_SIZE_RATIO)
+                iou[i] = np.maximum(iou[i], np.where(alike, buffered, 0.0))
         gaps = self._height_gaps([detections[c] for c in detection_cols])[candidates]
         allowed = (iou >= self.config.iou_gate) & (gaps <= 1.0)
         result = assign(1.0 - iou + HEIGHT_WEIGHT * np.minimum(gaps, 1.0), allowed)
@@ -411,6 +431,12 @@ def _left_the_view(track: _TrackState, frame_size: tuple[int, int] | None) -> bo
 def _top_lost(predicted_box, box) -> bool:
     """The detection's top edge is well below the predicted one: its top is hidden or cut."""
     return box[1] - predicted_box[1] > TOP_LOST_SHARE * predicted_box[3]
+
+
+def _buffered(box, scale: float) -> tuple[float, float, float, float]:
+    """The box grown by ``scale`` times its width and height on every side."""
+    x, y, w, h = box
+    return (x - scale * w, y - scale * h, w * (1 + 2 * scale), h * (1 + 2 * scale))
 
 
 def _warp_box(box, affine: np.ndarray):

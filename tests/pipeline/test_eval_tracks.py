@@ -101,6 +101,13 @@ def test_an_occlusion_re_found_late_by_a_new_track_counts_as_lost():
     assert event["hidden_frames"] == 20
 
 
+def test_objects_too_small_to_be_required_give_no_occlusion_events():
+    frames = [FrameRecord([_truth(1, 10 + 2 * i, visibility=0.0 if 10 <= i < 20 else 1.0)],
+                          [] if 10 <= i < 20 else [_out(5 if i < 10 else 6, 10 + 2 * i)], []) for i in range(30)]
+    assert len(occlusion_events(_run(frames), 0.3, 5)) == 1                  # 60 px boxes
+    assert occlusion_events(_run(frames), 0.3, 5, min_box_px=80) == []      # don't-care for MOT too
+
+
 def test_true_heights_learn_no_network_scale():
     """True height maps are metric: the geometry stage must not rescale them, nor doubt their scale."""
     from pipeline.config import Config

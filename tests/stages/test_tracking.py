@@ -197,6 +197,20 @@ def test_two_second_full_occlusion_keeps_id_and_height():
     assert tracks[0].box[0] == pytest.approx(20 + 4 * 59, abs=3)
 
 
+def test_a_walker_who_slowed_down_while_hidden_is_found_again():
+    """Its prediction ran on at the old speed, most of a box width ahead of where it came out:
+    neither it nor the last observed box overlaps the walker; the buffered prediction does."""
+    tracker = ObjectTracker(TrackingConfig())
+    x, ids = 20.0, []
+    for frame in range(70):
+        x += 4.0 if frame < 20 else 2.5                 # slows down behind the occluder
+        hidden = 20 <= frame < 45
+        tracks = tracker.update([] if hidden else [_detection(x, 100, 1.72)])
+        if not hidden:
+            ids.append(tracks[0].track_id)
+    assert len(set(ids)) == 1
+
+
 def test_reupdate_after_gap_resets_drifted_velocity():
     """OC-SORT re-update: after a gap the velocity comes from the observations around it."""
     tracker = ObjectTracker(TrackingConfig(max_misses=50))
