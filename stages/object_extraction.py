@@ -282,48 +282,40 @@ class ObjectExtractor:
                              grown: np.ndarray | None, work_heights: np.ndarray | None,
                              height_map: np.ndarray | None, scale: float,
                              edge: np.ndarray, work_edge: np.ndarray) -> list[Detection]:
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(candidate, connectivity=8)
         min_area_work = self.config.min_area_px * scale * scale
         detections = []
-        for blob, (x, y) in _components(candidate, min_area_work):
-            fg = None if moving is None else moving[y:y + blob.shape[0], x:x + blob.shape[1]]
+        for label in range(1, count):
+            x, y, w, h, area = stats[label]
+            if area < min_area_work:
+                continue
+            blob = labels[y:y + h, x:x + w] == label
+            fg = None if moving is None else moving[y:y + h, x:x + w]
+            heights = None if work_heights is None else work_heights[y:y + h, x:x + w]
             # Rain streaks and swaying leaves over a building or a tree are foreground too,
             # but sparse: a moving object is mostly foreground itself.
             if fg is not None and fg[blob].mean() < self.config.min_foreground_share:
                 continue
-            detections += self._blob_to_detections(blob, (x, y), moving, grown, work_heights, height_map,
-                                                   scale, edge, work_edge)
-        return detections
-
-    def _blob_to_detections(self, blob: np.ndarray, offset: tuple[int, int], moving: np.ndarray | None,
-                            grown: np.ndarray | None, work_heights: np.ndarray | None,
-                            height_map: np.ndarray | None, scale: float,
-                            edge: np.ndarray, work_edge: np.ndarray) -> list[Detection]:
-        """One blob that passed the foreground test: split where it holds several objects, then measured."""
-        x, y = offset
-        h, w = blob.shape
-        min_area_work = self.config.min_area_px * scale * scale
-        fg = None if moving is None else moving[y:y + h, x:x + w]
-        heights = None if work_heights is None else work_heights[y:y + h, x:x + w]
-        detections = []
-        # People side by side part on the foreground (each keeps the blob's share test: a
-        # person whose coat the background model half missed is still a person).
-        pieces = [blob] if fg is None else split_by_foreground(blob, fg, min_area_work)
-        # A crowd's outline shows its heads, unless the frame's edge may cut it (a truck's roof
-        # under rain streaks reads as a row of heads there).
-        by_heads = fg is not None and not work_edge[y:y + h, x:x + w][blob].any()
-        for piece in pieces:
-            parts = [piece] if heights is None else split_by_height_peaks(piece, heights, min_area_work)
-            if by_heads:
-                parts = [head for part in parts for head in split_by_heads(part, fg, min_area_work)]
-            for part in parts:
-                # A part cut off by height (a facade beside a walker) must be moving itself.
-                if (fg is not None and len(parts) > 1
-                        and fg[part].mean() < PART_FOREGROUND_FACTOR * self.config.min_foreground_share):
-                    continue
-                beyond = (False, False) if grown is None else moving_beyond_ends(part, (x, y), grown, work_edge)
-                detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond)
-                if detection is not None:
-                    detections.append(detection)
+            # People side by side part on the foreground (each keeps the blob's share test: a
+            # person whose coat the background model half missed is still a person).
+            pieces = [blob] if fg is None else split_by_foreground(blob, fg, min_area_work)
+            # A crowd's outline shows its heads, unless the frame's edge may cut it (a truck's roof
+            # under rain streaks reads as a row of heads there).
+            by_heads = fg is not None and not work_edge[y:y + h, x:x + w][blob].any()
+            for piece in pieces:
+                parts = [piece] if heights is None else split_by_height_peaks(piece, heights, min_area_work)
+                if by_heads:
+                    parts = [head for part in parts for head in split_by_heads(part, fg, min_area_work)]
+                for part in parts:
+                    # A part cut off by height (a facade beside a walker) must be moving itself.
+                    if (fg is not None and len(parts) > 1
+                            and fg[part].mean() < PART_FOREGROUND_FACTOR * self.config.min_foreground_share):
+                        continue
+                    beyond = (False, False) if grown is None else moving_beyond_ends(part, (x, y), grown,
+                                                                                     work_edge)
+                    detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond)
+                    if detection is not None:
+                        detections.append(detection)
         return detections
 
     def _piece_to_detection(self, piece: np.ndarray, offset: tuple[int, int], height_map: np.ndarray | None,
@@ -597,7 +589,7 @@ def split_by_heads(part: np.ndarray, fg: np.ndarray, min_area: float) -> list[np
     outline = np.where(has, rows[-1] + 1 - np.argmax(moving, axis=0), 0).astype(float)
     reach = max(1, int(round(HEADS_MIN_GAP * span / 2)))
     padded = np.pad(outline, reach, constant_values=0)
-    local_max = np.array([padded[i:i + 2 * reach + 1].max() for i in range(outline.size)])
+    local_max = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1).max(axis=1)
     # Heads of a group stand about as high as each other: a lower bump is a bag, a wheel, a hand.
     tall = outline >= HEADS_MIN_SHARE * outline.max()
     peaks = np.flatnonzero((outline == local_max) & has & tall)
@@ -628,15 +620,6 @@ def split_by_heads(part: np.ndarray, fg: np.ndarray, min_area: float) -> list[np
         if piece.sum() >= min_area:
             pieces.append(piece)
     return pieces if len(pieces) >= 2 else [part]
-
-
-def _components(mask: np.ndarray, min_area: float):
-    """(piece mask cropped to its box, (x, y) of the box) for each 8-connected piece of at least ``min_area``."""
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    for label in range(1, count):
-        x, y, w, h, area = stats[label]
-        if area >= min_area:
-            yield labels[y:y + h, x:x + w] == label, (int(x), int(y))
 
 
 def drop_small_pieces(mask: np.ndarray, min_px: float) -> np.ndarray:
