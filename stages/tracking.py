@@ -7,7 +7,9 @@ One frame, in order:
 
 1. Camera shake: the background's affine from the last frame moves every track's box state
    (and its last observation), never its height.
-2. Predict every track (constant-velocity box, near-constant height).
+2. Predict every track (constant-velocity box, near-constant height). A detection holding the
+   predicted boxes of two or more tracks seen a frame ago (walkers passing close: one blob) is
+   cut into one piece per track (``merged_blobs``); the pieces move boxes, not heights.
 3. Associate (Hungarian) on a cost mixing IoU, matched-point votes, the Mahalanobis distance
    of the box and the height difference; pairs outside the motion gate, or with neither
    overlap nor votes, are not allowed.
@@ -41,6 +43,7 @@ from pipeline.config import TrackingConfig
 from pipeline.packets import Detection, FeatureMatches, FramePacket, Track
 from stages.association import Region, assign, feature_votes, iou_matrix
 from stages.kalman import FilterFactory, HeightFilter, MotionFilter, MotionSnapshot, StatureWindow
+from stages.merged_blobs import split_by_predictions
 
 # Cost weights next to IoU (weight 1): the motion term is the Mahalanobis distance as a share
 # of the gate, the height term the squared height difference in units of the gate.
@@ -67,6 +70,9 @@ MIN_SHARE_IN_VIEW = 0.25
 RECOVERY_BUFFER_PER_MISS = 0.05
 RECOVERY_MAX_BUFFER = 0.5
 RECOVERY_MAX_SIZE_RATIO = 1.5
+# Tracks seen within this many frames may claim their share of a merged blob (their prediction
+# is still good).
+MERGE_MAX_MISSES = 1
 # Classes whose geometry height only stands in when the network has none (see _update_height).
 GEOMETRY_ONLY_AS_FALLBACK = ("vehicle",)
 
@@ -158,6 +164,9 @@ class ObjectTracker:
                 track.height.predict()
             track.age += 1
 
+        claimants = [t for t in self.tracks if t.confirmed and t.misses <= MERGE_MAX_MISSES]
+        detections = split_by_predictions(detections, [t.motion.box for t in claimants],
+                                          [t.cls for t in claimants])
         cost, allowed = self._association_cost(detections, matches)
         result = assign(cost, allowed)
         matched = list(result.matches)
