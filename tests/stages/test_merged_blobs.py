@@ -84,3 +84,14 @@ def test_walkers_who_pass_close_keep_their_own_boxes_ids_and_heights():
     final = {t.track_id: t.height_m for t in tracks}
     assert abs(final[ids["a"].pop()] - heights["a"]) < 0.03
     assert abs(final[ids["b"].pop()] - heights["b"]) < 0.03
+
+
+def test_two_vehicle_tracks_in_one_blob_are_one_vehicle_not_cut():
+    tracker = ObjectTracker(TrackingConfig())
+    front, back = (100, 50, 40, 40), (138, 46, 40, 44)          # a van's cab and box, seen apart
+    for frame in range(6):
+        tracker.update([Detection(box=tuple(map(float, b)), height_m=2.6, cls="vehicle", height_noise_m=0.1)
+                        for b in (front, back)])
+    whole = _merged([front, back], height_m=2.6)
+    tracks = [t for t in tracker.update([whole]) if t.updated]
+    assert len(tracks) == 1 and iou_matrix([tracks[0].box], [whole.box])[0, 0] > 0.8
