@@ -39,6 +39,9 @@ MIN_PIECE_HEIGHT_SHARE = 0.7
 # rows) are two fragments of one object, not two objects (Oxford: a walker at the frame's top
 # edge had a track on its head and one on its legs).
 MIN_SHARED_ROWS = 0.2
+# Vehicles only, side by side in one blob, are the fragments of one vehicle (generator dev set:
+# a van coming closer kept two tracks for 30 frames); a walker beside a car is two objects.
+VEHICLE = "vehicle"
 
 
 def split_by_predictions(detections: list[Detection], predictions: list[tuple[float, float, float, float]],
@@ -55,7 +58,8 @@ def split_by_predictions(detections: list[Detection], predictions: list[tuple[fl
     for detection in detections:
         inside = np.flatnonzero(_predictions_inside(detection.box, boxes))
         pieces = None
-        if len(inside) >= 2 and detection.mask is not None and _side_by_side(boxes[inside]):
+        if (len(inside) >= 2 and detection.mask is not None and _side_by_side(boxes[inside])
+                and any(classes[i] != VEHICLE for i in inside)):
             pieces = _cut(detection, boxes[inside], [classes[i] for i in inside])
         result.extend(pieces or [detection])
     return result

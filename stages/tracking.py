@@ -70,10 +70,8 @@ MIN_SHARE_IN_VIEW = 0.25
 RECOVERY_BUFFER_PER_MISS = 0.05
 RECOVERY_MAX_BUFFER = 0.5
 RECOVERY_MAX_SIZE_RATIO = 1.5
-# Tracks of these classes seen within this many frames may claim their share of a merged blob
-# (their prediction is still good). Not vehicles: two vehicle tracks in one blob were mostly the
-# fragments of one (generator dev set: a van coming closer kept two tracks for 30 frames).
-MERGE_CLASSES = ("person", "cyclist")
+# Tracks seen within this many frames may claim their share of a merged blob (their prediction
+# is still good).
 MERGE_MAX_MISSES = 1
 # Classes whose geometry height only stands in when the network has none (see _update_height).
 GEOMETRY_ONLY_AS_FALLBACK = ("vehicle",)
@@ -166,8 +164,7 @@ class ObjectTracker:
                 track.height.predict()
             track.age += 1
 
-        claimants = [t for t in self.tracks
-                     if t.confirmed and t.misses <= MERGE_MAX_MISSES and t.cls in MERGE_CLASSES]
+        claimants = [t for t in self.tracks if t.confirmed and t.misses <= MERGE_MAX_MISSES]
         detections = split_by_predictions(detections, [t.motion.box for t in claimants],
                                           [t.cls for t in claimants])
         cost, allowed = self._association_cost(detections, matches)
