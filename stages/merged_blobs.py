@@ -66,6 +66,7 @@ def split_by_predictions(detections: list[Detection], predictions: list[tuple[fl
 
 
 def _predictions_inside(box, boxes: np.ndarray) -> np.ndarray:
+    """Bool per predicted box: mostly inside this detection's box, and well smaller than it."""
     x, y, w, h = box
     inter_w = np.clip(np.minimum(x + w, boxes[:, 0] + boxes[:, 2]) - np.maximum(x, boxes[:, 0]), 0, None)
     inter_h = np.clip(np.minimum(y + h, boxes[:, 1] + boxes[:, 3]) - np.maximum(y, boxes[:, 1]), 0, None)
@@ -92,7 +93,7 @@ def _cut(detection: Detection, boxes: np.ndarray, classes: list[str]) -> list[De
     y = rows + detection.box[1] + 0.5
     centre_x = boxes[:, 0] + boxes[:, 2] / 2.0
     centre_y = boxes[:, 1] + boxes[:, 3] / 2.0
-    # Distance to each box centre in units of its half size: < 1 + margin inside the grown box.
+    # Distance to each box centre in half box sizes: the grown box reaches 1 + 2 x margin.
     dx = np.abs(x[:, None] - centre_x[None]) / (boxes[None, :, 2] / 2.0)
     dy = np.abs(y[:, None] - centre_y[None]) / (boxes[None, :, 3] / 2.0)
     reach = 1.0 + 2.0 * CLAIM_MARGIN
