@@ -14,8 +14,8 @@ from scipy.optimize import linear_sum_assignment
 Box = tuple[float, float, float, float]
 
 
-def iou_matrix(boxes_a: list[Box] | np.ndarray, boxes_b: list[Box] | np.ndarray) -> np.ndarray:
-    """Intersection over union of every box in ``a`` with every box in ``b`` (x, y, w, h)."""
+def intersection_matrix(boxes_a: list[Box] | np.ndarray, boxes_b: list[Box] | np.ndarray) -> np.ndarray:
+    """Overlap area of every box in ``a`` with every box in ``b`` (x, y, w, h)."""
     a = np.asarray(boxes_a, dtype=float).reshape(-1, 4)
     b = np.asarray(boxes_b, dtype=float).reshape(-1, 4)
     if len(a) == 0 or len(b) == 0:
@@ -26,7 +26,16 @@ def iou_matrix(boxes_a: list[Box] | np.ndarray, boxes_b: list[Box] | np.ndarray)
     bx1, by1 = bx0 + b[:, 2], by0 + b[:, 3]
     inter_w = np.clip(np.minimum(ax1, bx1) - np.maximum(ax0, bx0), 0, None)
     inter_h = np.clip(np.minimum(ay1, by1) - np.maximum(ay0, by0), 0, None)
-    inter = inter_w * inter_h
+    return inter_w * inter_h
+
+
+def iou_matrix(boxes_a: list[Box] | np.ndarray, boxes_b: list[Box] | np.ndarray) -> np.ndarray:
+    """Intersection over union of every box in ``a`` with every box in ``b`` (x, y, w, h)."""
+    a = np.asarray(boxes_a, dtype=float).reshape(-1, 4)
+    b = np.asarray(boxes_b, dtype=float).reshape(-1, 4)
+    inter = intersection_matrix(a, b)
+    if inter.size == 0:
+        return inter
     union = a[:, 2:3] * a[:, 3:4] + b[:, 2] * b[:, 3] - inter
     return np.where(union > 0, inter / np.maximum(union, 1e-9), 0.0)
 

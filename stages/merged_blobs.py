@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline.packets import Detection
+from stages.association import intersection_matrix
 
 # A predicted box is inside a detection when this share of it overlaps the detection, and the
 # detection is then at least this many times the box's area (else the box explains the blob).
@@ -67,12 +68,9 @@ def split_by_predictions(detections: list[Detection], predictions: list[tuple[fl
 
 def _predictions_inside(box, boxes: np.ndarray) -> np.ndarray:
     """Bool per predicted box: mostly inside this detection's box, and well smaller than it."""
-    x, y, w, h = box
-    inter_w = np.clip(np.minimum(x + w, boxes[:, 0] + boxes[:, 2]) - np.maximum(x, boxes[:, 0]), 0, None)
-    inter_h = np.clip(np.minimum(y + h, boxes[:, 1] + boxes[:, 3]) - np.maximum(y, boxes[:, 1]), 0, None)
+    overlap = intersection_matrix([box], boxes)[0]
     areas = boxes[:, 2] * boxes[:, 3]
-    return ((inter_w * inter_h >= MIN_SHARE_INSIDE * areas) & (areas > 0)
-            & (w * h >= MIN_AREA_RATIO * areas))
+    return (overlap >= MIN_SHARE_INSIDE * areas) & (areas > 0) & (box[2] * box[3] >= MIN_AREA_RATIO * areas)
 
 
 def _side_by_side(boxes: np.ndarray) -> bool:
