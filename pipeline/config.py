@@ -110,6 +110,8 @@ class TrackingConfig:
     """Per-frame random walk of the height state: near zero, objects do not grow."""
     height_measurement_noise_m: float = 0.15
     """Base standard deviation of one frame's height measurement."""
+    network_bias_share: float = 0.2
+    """Std of the network's bias on one object, as a share of its height (constant over frames)."""
     motion_gate_chi2: float = 13.28
     """Mahalanobis gate of a detection box against a track's prediction (chi-square, 4 dof; 99 %)."""
     vote_weight: float = 0.5

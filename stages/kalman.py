@@ -7,8 +7,9 @@ Two independent filters per track:
   size as in DeepSORT / BoT-SORT (``std_weight_position = 1/20``, ``std_weight_velocity =
   1/160``): a 20 px box and a 200 px box are equally sure in relative terms. Camera shake is
   applied to this state (``warp``), never to the height.
-* ``HeightFilter``: the object's height in metres, a 1-D random walk with near-zero process
-  noise (objects do not grow), so every frame is one more measurement of the same number.
+* ``HeightFilter``: the object's height in metres, a random walk with near-zero process noise
+  (objects do not grow), so every frame is one more measurement of the same number; beside it,
+  the network's bias on this object, which only a second channel (geometry) can measure.
   A second measurement channel (geometry) is just a second ``update`` in the same frame
   (sequential update: independent measurements may be applied one after the other).
 
@@ -139,20 +140,38 @@ class MotionFilter:
 
 
 class HeightFilter:
-    """Object height in metres: a constant with a tiny random walk.
+    """Object height in metres: a constant with a tiny random walk, plus the network's bias on it.
 
     Measurements come through named channels ("network", "geometry"); several in one frame are
     applied one after the other (sequential update of independent measurements), and the
     filter remembers which channels have contributed (``source``).
+
+    The network's error on one object is not white noise: it reads a given walker 20 cm low in
+    every frame (its colours, its pose, the scene behind it stay the same), so averaging its
+    frames converges on the wrong number with a shrinking std. The state therefore holds that
+    bias ``b`` beside the height ``H``: a network height measures ``H + b``, a geometry height
+    measures ``H``. ``b`` starts at 0 with a std of ``bias_share`` of the height and hardly
+    moves. With the network alone, ``H`` is the network's mean and its std never falls below
+    the bias prior (honest: more frames of a biased reading do not make it right); where the
+    geometry measures too, the filter learns ``b`` and the height follows the geometry, while a
+    frame with only a network height (feet cut by the frame) is corrected by the learnt bias.
     """
 
-    def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = "network"):
-        kf = KalmanFilter(dim_x=1, dim_z=1)
-        kf.x = np.array([[height_m]])
-        kf.P = np.array([[std_m ** 2]])
-        kf.F = np.eye(1)
-        kf.H = np.eye(1)
-        kf.Q = np.array([[process_noise_m ** 2]])
+    # Channels whose measurements carry the network's bias.
+    BIASED_CHANNELS = ("network",)
+
+    def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = "network",
+                 bias_share: float = 0.0):
+        kf = KalmanFilter(dim_x=2, dim_z=1)
+        bias_var = (bias_share * max(height_m, 0.0)) ** 2
+        kf.x = np.array([[height_m], [0.0]])
+        if channel in self.BIASED_CHANNELS:
+            # z = H + b: the height is as unsure as the measurement and the bias together.
+            kf.P = np.array([[std_m ** 2 + bias_var, -bias_var], [-bias_var, bias_var]])
+        else:
+            kf.P = np.diag([std_m ** 2, bias_var])
+        kf.F = np.eye(2)
+        kf.Q = np.diag([process_noise_m ** 2, process_noise_m ** 2])
         self.kf = kf
         self.updates: dict[str, int] = {channel: 1}
 
@@ -170,15 +189,25 @@ class HeightFilter:
     def std_m(self) -> float:
         return float(np.sqrt(self.kf.P[0, 0]))
 
+    @property
+    def network_bias_m(self) -> float:
+        return float(self.kf.x[1, 0])
+
+    def _row(self, channel: str) -> np.ndarray:
+        return np.array([[1.0, 1.0 if channel in self.BIASED_CHANNELS else 0.0]])
+
     def predict(self) -> None:
         self.kf.predict()
 
-    def normalized_residual(self, height_m: float, std_m: float) -> float:
+    def normalized_residual(self, height_m: float, std_m: float, channel: str = "network") -> float:
         """How many innovation standard deviations a measurement lies from the state."""
-        return abs(height_m - self.height_m) / float(np.sqrt(self.kf.P[0, 0] + std_m ** 2))
+        row = self._row(channel)
+        expected = float((row @ self.kf.x)[0, 0])
+        variance = float((row @ self.kf.P @ row.T)[0, 0]) + std_m ** 2
+        return abs(height_m - expected) / float(np.sqrt(variance))
 
     def update(self, height_m: float, std_m: float, channel: str = "network") -> None:
-        self.kf.update(np.array([[height_m]]), R=np.array([[std_m ** 2]]))
+        self.kf.update(np.array([[height_m]]), R=np.array([[std_m ** 2]]), H=self._row(channel))
         self.updates[channel] = self.updates.get(channel, 0) + 1
 
 
@@ -221,9 +250,10 @@ class FilterFactory:
 
     def __init__(self, config: TrackingConfig):
         self.height_process_noise_m = config.height_process_noise_m
+        self.network_bias_share = config.network_bias_share
 
     def create_motion_filter(self, box: Box) -> MotionFilter:
         return MotionFilter(box)
 
     def create_height_filter(self, height_m: float, std_m: float, channel: str = "network") -> HeightFilter:
-        return HeightFilter(height_m, std_m, self.height_process_noise_m, channel)
+        return HeightFilter(height_m, std_m, self.height_process_noise_m, channel, self.network_bias_share)

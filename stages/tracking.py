@@ -24,7 +24,9 @@ One frame, in order:
    upper quantile of a short window: stature, not the gait's mean dip nor a blob that lost its
    feet or head for a frame); a network height below the geometry's lower bound (feet cut off)
    is raised to it; outliers beyond ``height_gate_sigma`` are skipped, and a channel whose run
-   of rejections outweighs the state restarts it.
+   of rejections outweighs the state restarts it. The height state carries the network's bias
+   on this object beside the height (``HeightFilter``): where geometry measures too, the bias
+   is learnt and the height follows the geometry.
 7. Tracks are confirmed after ``min_hits`` hits in a row (and ``confirm_s`` seconds of them)
    and dropped after ``max_misses`` frames without a hit (and ``max_miss_s`` seconds): durations,
    so that a 25 fps camera and a 10 fps one behave alike. A tentative track is dropped at its
@@ -255,7 +257,8 @@ class ObjectTracker:
                 continue
             for col, detection in enumerate(detections):
                 if _usable(detection.height_m, detection.height_noise_m):
-                    residual = track.height.normalized_residual(detection.height_m, detection.height_noise_m)
+                    residual = track.height.normalized_residual(detection.height_m, detection.height_noise_m,
+                                                                 "network")
                     gaps[row, col] = (residual / self.config.height_gate_sigma) ** 2
         return gaps
 
@@ -373,7 +376,8 @@ class ObjectTracker:
                 track.height = self.filters.create_height_filter(height, noise, channel)
                 continue
             settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
-            if settled and track.height.normalized_residual(height, noise) > self.config.height_gate_sigma:
+            residual = track.height.normalized_residual(height, noise, channel)
+            if settled and residual > self.config.height_gate_sigma:
                 rejected = track.height_rejections.setdefault(channel, [])
                 rejected.append((height, noise))
                 if self._outweighs(rejected, track.height):

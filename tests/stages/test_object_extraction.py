@@ -10,7 +10,7 @@ import pytest
 from pipeline.config import GroundConfig, TrackingConfig
 from pipeline.errors import ConfigError
 from pipeline.packets import CameraInfo, Frame, FramePacket
-from stages.object_extraction import ObjectExtractor, coarse_class, moving_beyond_ends
+from stages.object_extraction import ObjectExtractor, coarse_class, foreground_ends, moving_beyond_ends
 
 WIDTH, HEIGHT = 640, 360
 
@@ -68,8 +68,11 @@ def test_moving_person_becomes_one_detection_with_its_height():
     assert (x, y, w, h) == pytest.approx((100 + 6 * 14, 150, 40, 120), abs=4)
     assert detection.height_m == pytest.approx(1.75, abs=0.06)
     assert detection.cls == "person"
-    assert detection.foot_xy == pytest.approx((x + w / 2, y + h))
-    assert detection.top_xy == pytest.approx((x + w / 2, y))
+    # Geometry points are the walker's own ends: the soles (whose heights are under the ground
+    # threshold, so the box stops 2 px short) and the crown.
+    assert y + h < 150 + 120
+    assert detection.foot_xy == pytest.approx((x + w / 2, 150 + 120))
+    assert detection.top_xy == pytest.approx((x + w / 2, 150))
     assert not detection.touches_border
     assert 0 < detection.height_noise_m < 0.5
     assert detection.mask.shape == (int(h), int(w)) and detection.mask.mean() > 0.8
@@ -116,6 +119,28 @@ def test_moving_beyond_ends_needs_an_unbroken_run_to_the_edge():
     assert moving_beyond_ends(part, (10, 20), grown, edge) == (False, False)
     grown[40:60, 10:20] = True                       # moving all the way down
     assert moving_beyond_ends(part, (10, 20), grown, edge) == (False, True)
+
+
+def test_foreground_ends_are_the_crown_and_the_soles_not_the_grown_box():
+    moving = np.zeros((40, 30), bool)
+    moving[11:31, 12:18] = True                 # a walker: rows 11-30 move ...
+    changed = moving.copy()
+    changed[10, 13:17] = True                   # ... and dark hair on row 10 is marked as shadow
+    moving[31:33, 12:14] = True                 # the soles, which the height map calls ground
+    changed |= moving
+    changed[31:35, 18:28] = True                # a cast shadow on the ground beside the feet
+    moving[36:38, 12:18] = True                 # a speck below, not touching the feet
+    part = np.zeros((30, 30), bool)             # offset (0, 2): the grown blob, cut to the height map
+    part[5:29, 9:21] = True                     # rows 7-30: 3 rows above the crown, none below row 30
+    assert foreground_ends(part, (0, 2), changed, moving, reach=3) == (10, 32)
+    # The soles are followed only as far as the growth could have cut them off.
+    assert foreground_ends(part, (0, 2), changed, moving, reach=1) == (10, 31)
+    # Nothing moving on the part's last row (the growth below a walker): its own bottom.
+    moving[29:33] = False
+    assert foreground_ends(part, (0, 2), changed, moving, reach=3) == (10, 30)
+    # Nothing changed in the part at all: the part's own ends.
+    empty = np.zeros_like(moving)
+    assert foreground_ends(part, (0, 2), empty, empty, reach=3) == (7, 30)
 
 
 def test_the_black_border_of_an_undistorted_frame_cuts_like_the_frame_edge():

@@ -33,7 +33,8 @@ def test_iou_matrix_and_assignment():
 
 def test_moving_object_gives_one_track_whose_height_converges():
     rng = np.random.default_rng(0)
-    tracker = ObjectTracker(TrackingConfig())
+    # White measurement noise only (no per-object network bias): the pure averaging case.
+    tracker = ObjectTracker(TrackingConfig(network_bias_share=0.0))
     true_height, stds, ids = 1.75, [], set()
     for frame in range(80):
         measured = true_height + rng.normal(0.0, 0.15)
@@ -252,14 +253,43 @@ def test_geometry_is_a_second_height_channel():
         detection.geometry_height_m, detection.geometry_noise_m = 1.80, 0.10
         detection.ground_xy_m = (1.0 + 0.1 * frame, 2.0)
         tracks = tracker.update([detection])
-    # Equal noise: the fused height is the average of the two channels, and surer than either.
+    # The network reads this object 10 cm low in every frame: a bias, which the geometry
+    # measures; the height follows the geometry, surer than either channel alone.
     assert tracks[0].height_source == "fused"
-    assert tracks[0].height_m == pytest.approx(1.75, abs=0.01)
+    assert tracks[0].height_m == pytest.approx(1.80, abs=0.01)
+    assert tracks[0].height_std_m < 0.10 / 4
     assert tracks[0].ground_xy_m == pytest.approx((3.9, 2.0))
+    # Without a bias state the two channels would simply be averaged.
+    unbiased = ObjectTracker(TrackingConfig(min_hits=1, network_bias_share=0.0))
+    for frame in range(30):
+        detection = _detection(10 + 2 * frame, 10, 1.70, noise_m=0.10)
+        detection.geometry_height_m, detection.geometry_noise_m = 1.80, 0.10
+        tracks = unbiased.update([detection])
+    assert tracks[0].height_m == pytest.approx(1.75, abs=0.01)
     only_geometry = ObjectTracker(TrackingConfig(min_hits=1))
     detection = _detection(10, 10, float("nan"), noise_m=float("inf"))
     detection.geometry_height_m, detection.geometry_noise_m = 1.8, 0.1
     assert only_geometry.update([detection])[0].height_source == "geometry"
+
+
+def test_a_network_bias_is_not_averaged_away_and_the_geometry_learns_it():
+    rng = np.random.default_rng(3)
+    network_only = ObjectTracker(TrackingConfig(min_hits=1))
+    for frame in range(60):
+        tracks = network_only.update([_detection(10 + 2 * frame, 10, 1.50 + rng.normal(0, 0.05), noise_m=0.05)])
+    # Sixty frames of the same network reading do not make it surer than the network's bias.
+    assert tracks[0].height_m == pytest.approx(1.50, abs=0.03)
+    assert tracks[0].height_std_m > 0.15 * 1.50
+    # With geometry for 30 frames, the bias (-0.25 m) is learnt: frames where only the network
+    # measures (feet cut off) keep the geometry's height instead of pulling it to 1.50.
+    tracker = ObjectTracker(TrackingConfig(min_hits=1))
+    for frame in range(60):
+        detection = _detection(10 + 2 * frame, 10, 1.50 + rng.normal(0, 0.05), noise_m=0.05)
+        if frame < 30:
+            detection.geometry_height_m, detection.geometry_noise_m = 1.75 + rng.normal(0, 0.05), 0.05
+        tracks = tracker.update([detection])
+    assert tracks[0].height_m == pytest.approx(1.75, abs=0.03)
+    assert tracks[0].height_std_m < 0.05
 
 
 def test_one_wild_height_does_not_move_a_settled_track():
