@@ -189,10 +189,6 @@ class HeightFilter:
     def std_m(self) -> float:
         return float(np.sqrt(self.kf.P[0, 0]))
 
-    @property
-    def network_bias_m(self) -> float:
-        return float(self.kf.x[1, 0])
-
     def _row(self, channel: str) -> np.ndarray:
         return np.array([[1.0, 1.0 if channel in self.BIASED_CHANNELS else 0.0]])
 
