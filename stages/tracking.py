@@ -376,8 +376,8 @@ class ObjectTracker:
                 track.height = self.filters.create_height_filter(height, noise, channel)
                 continue
             settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
-            residual = track.height.normalized_residual(height, noise, channel)
-            if settled and residual > self.config.height_gate_sigma:
+            if settled and (track.height.normalized_residual(height, noise, channel)
+                            > self.config.height_gate_sigma):
                 rejected = track.height_rejections.setdefault(channel, [])
                 rejected.append((height, noise))
                 if self._outweighs(rejected, track.height):
