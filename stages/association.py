@@ -110,3 +110,27 @@ def feature_votes(prev_pts: np.ndarray, curr_pts: np.ndarray, previous: list[Reg
     counts = start.T.astype(float) @ end.astype(float)
     totals = start.sum(axis=0).astype(float)[:, None]
     return np.divide(counts, totals, out=np.zeros_like(counts), where=totals > 0)
+
+
+def direction_mismatch(velocities: np.ndarray, origins: list[Box], boxes: list[Box],
+                       min_speed_px: float = 0.5, min_step_px: float = 2.0) -> np.ndarray:
+    """How much the step from each track's last observed box to each box goes against its motion.
+
+    OC-SORT's observation-centric momentum: two walkers who cross are easily swapped by box
+    overlap alone, but each keeps walking its own way. ``(1 - cos angle) / 2`` between the track's
+    velocity (pixels per frame, rows) and the step from its ``origins`` box centre to each box's
+    centre (columns): 0 straight ahead, 1 straight back. 0 where the track barely moves or the
+    step is too short to have a direction (no evidence either way).
+    """
+    velocities = np.asarray(velocities, dtype=float).reshape(-1, 2)
+    mismatch = np.zeros((len(velocities), len(boxes)))
+    if len(velocities) == 0 or len(boxes) == 0:
+        return mismatch
+    o = np.asarray(origins, dtype=float).reshape(-1, 4)
+    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    steps = (b[None, :, :2] + b[None, :, 2:] / 2.0) - (o[:, None, :2] + o[:, None, 2:] / 2.0)
+    step_len = np.linalg.norm(steps, axis=2)
+    speed = np.linalg.norm(velocities, axis=1)[:, None]
+    cos = np.einsum("tk,tdk->td", velocities, steps) / np.maximum(speed * step_len, 1e-9)
+    evidence = (speed >= min_speed_px) & (step_len >= min_step_px)
+    return np.where(evidence, (1.0 - cos) / 2.0, 0.0)

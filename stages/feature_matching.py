@@ -19,6 +19,16 @@ FORWARD_BACKWARD_MAX_PX = 1.0
 # Share of the ORB budget spent on above-ground regions: movers are small but matter most.
 OBJECT_FEATURE_SHARE = 0.5
 ORB_LEVELS = 4
+# Fewer background points than this: the background is hidden (a bus filling the view) and
+# RANSAC would fit a few shadow or mismatch points (generator: a 300 px "shake" at 6 points that
+# threw every track off its object). The camera is then taken to be still.
+MIN_BACKGROUND_POINTS = 12
+# The camera is fixed: a motion is accepted only if, within this tolerance (pixels of the
+# matching image), it explains clearly more background points than standing still does
+# (still points at least this share of the motion's: the camera is taken to be still). A
+# vehicle's shadow creeping over the ground fitted 2 px "shakes" at RANSAC's 3 px tolerance.
+STILL_TOLERANCE_PX = 1.0
+STILL_PREFERENCE = 0.9
 
 
 class FeatureMatcher:
@@ -127,12 +137,21 @@ class FeatureMatcher:
         return above_ground[y, x]
 
     def _camera_motion(self, prev_pts: np.ndarray, curr_pts: np.ndarray):
-        """Similarity transform of the static background (identity when too few points)."""
+        """Similarity transform of the static background; identity unless it clearly does better.
+
+        Returns the 2x3 motion and which background points agree with it.
+        """
         identity = np.eye(2, 3, dtype=np.float32)
-        if len(prev_pts) < 6:
-            return identity, np.ones(len(prev_pts), bool)
+        threshold = self.config.ransac_threshold_px
+        moved = np.linalg.norm(curr_pts - prev_pts, axis=1)
+        if len(prev_pts) < MIN_BACKGROUND_POINTS:
+            return identity, moved <= threshold
         matrix, inliers = cv2.estimateAffinePartial2D(
-            prev_pts, curr_pts, method=cv2.RANSAC, ransacReprojThreshold=self.config.ransac_threshold_px)
+            prev_pts, curr_pts, method=cv2.RANSAC, ransacReprojThreshold=threshold)
         if matrix is None:
-            return identity, np.ones(len(prev_pts), bool)
+            return identity, moved <= threshold
+        tolerance = min(threshold, STILL_TOLERANCE_PX)
+        residual = np.linalg.norm(prev_pts @ matrix[:, :2].T + matrix[:, 2] - curr_pts, axis=1)
+        if (moved <= tolerance).sum() >= STILL_PREFERENCE * (residual <= tolerance).sum():
+            return identity, moved <= threshold
         return matrix.astype(np.float32), inliers.ravel().astype(bool)

@@ -43,7 +43,7 @@ import numpy as np
 
 from pipeline.config import TrackingConfig
 from pipeline.packets import Detection, FeatureMatches, FramePacket, Track
-from stages.association import Region, assign, feature_votes, iou_matrix
+from stages.association import Region, assign, direction_mismatch, feature_votes, iou_matrix
 from stages.kalman import FilterFactory, HeightFilter, MotionFilter, MotionSnapshot, StatureWindow
 from stages.merged_blobs import split_by_predictions
 
@@ -51,6 +51,9 @@ from stages.merged_blobs import split_by_predictions
 # of the gate, the height term the squared height difference in units of the gate.
 MOTION_WEIGHT = 0.3
 HEIGHT_WEIGHT = 0.5
+# Weight of a step straight against the track's motion (OC-SORT's momentum term): two walkers
+# crossing while one blob swapped ids on box overlap alone (generator occlusion set).
+DIRECTION_WEIGHT = 0.5
 # A height filter is trusted to reject outliers only after this many measurements; a run of at
 # least this many rejections of one channel restarts it, if the run outweighs it (``_outweighs``).
 HEIGHT_GATE_AFTER = 5
@@ -233,8 +236,15 @@ class ObjectTracker:
         allowed = ((iou >= self.config.iou_gate) | (votes >= self.config.min_vote_share)) & (distance <= gate)
         allowed &= height_gap <= 1.0
         cost = ((1.0 - iou) + self.config.vote_weight * (1.0 - votes)
-                + MOTION_WEIGHT * np.minimum(distance / gate, 1.0) + HEIGHT_WEIGHT * np.minimum(height_gap, 1.0))
+                + MOTION_WEIGHT * np.minimum(distance / gate, 1.0) + HEIGHT_WEIGHT * np.minimum(height_gap, 1.0)
+                + DIRECTION_WEIGHT * self._direction_mismatch(range(n_tracks), boxes))
         return cost, allowed
+
+    def _direction_mismatch(self, rows, boxes) -> np.ndarray:
+        """``direction_mismatch`` of these tracks (from their last observation) to these boxes."""
+        tracks = [self.tracks[r] for r in rows]
+        return direction_mismatch(np.array([t.motion.velocity for t in tracks]).reshape(-1, 2),
+                                  [t.last_observation or t.motion.box for t in tracks], boxes)
 
     def _votes(self, detections: list[Detection], matches: FeatureMatches | None) -> np.ndarray:
         """Share of each track's matched points from the last frame that land on each detection."""
@@ -287,7 +297,9 @@ class ObjectTracker:
                 iou[i] = np.maximum(iou[i], np.where(alike, buffered, 0.0))
         gaps = self._height_gaps([detections[c] for c in detection_cols])[candidates]
         allowed = (iou >= self.config.iou_gate) & (gaps <= 1.0)
-        result = assign(1.0 - iou + HEIGHT_WEIGHT * np.minimum(gaps, 1.0), allowed)
+        cost = (1.0 - iou + HEIGHT_WEIGHT * np.minimum(gaps, 1.0)
+                + DIRECTION_WEIGHT * self._direction_mismatch(candidates, boxes))
+        result = assign(cost, allowed)
         rows = [candidates[r] for r, _ in result.matches]
         cols = [detection_cols[c] for _, c in result.matches]
         return ((rows, [r for r in track_rows if r not in rows]),

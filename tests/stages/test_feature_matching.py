@@ -46,3 +46,33 @@ def test_camera_shake_is_recovered_and_object_points_are_flagged(downscale):
 def test_first_frame_has_no_matches():
     matcher = FeatureMatcher(MatchingConfig(), GroundConfig())
     assert matcher.process(_packet(0, *_scene())).matches is None
+
+
+def _still_and_drifting_points(n_still: int, n_drifting: int, drift_px: float, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    prev = rng.uniform(0, 300, (n_still + n_drifting, 2)).astype(np.float32)
+    curr = prev + rng.normal(0, 0.1, prev.shape).astype(np.float32)
+    curr[n_still:, 0] += drift_px
+    return prev, curr
+
+
+def test_a_still_camera_is_not_given_the_motion_of_a_drifting_shadow():
+    """70 background points stand still, 45 (a vehicle's shadow on the road) drift 2.5 px: at
+    RANSAC's 3 px a ~1 px shift explains them all, but standing still explains more points
+    closely, and the camera is fixed."""
+    matcher = FeatureMatcher(MatchingConfig(), GroundConfig())
+    motion, agree = matcher._camera_motion(*_still_and_drifting_points(70, 45, 2.5))
+    assert np.allclose(motion, np.eye(2, 3))
+    assert agree.sum() >= 70
+
+
+def test_a_hidden_background_gives_no_camera_motion():
+    """A bus fills the view: the few background points left say nothing about the camera."""
+    matcher = FeatureMatcher(MatchingConfig(), GroundConfig())
+    prev, curr = _still_and_drifting_points(3, 5, 40.0)
+    motion, _ = matcher._camera_motion(prev, curr)
+    assert np.allclose(motion, np.eye(2, 3))
+    # A real shake of many points is still recovered.
+    prev, curr = _still_and_drifting_points(0, 80, 4.0)
+    motion, agree = matcher._camera_motion(prev, curr)
+    assert motion[0, 2] == pytest.approx(4.0, abs=0.2) and agree.sum() >= 75
