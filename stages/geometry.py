@@ -45,6 +45,12 @@ SCALE_WINDOW = 1000
 NETWORK_PRIOR_SCALE_NOISE = 0.5
 # Geometry heights outside this range are failures (foot near the horizon, top ray grazing).
 PLAUSIBLE_HEIGHT_M = (0.05, 30.0)
+# Classes in metres (see ``metric_class``): wider than a bicycle is long, or taller than anyone
+# and wider than a person, is a vehicle; a person is at most this wide (a stride, arms swinging);
+# upright objects between these heights are people or cyclists.
+VEHICLE_MIN_WIDTH_M = 1.8
+PERSON_MAX_WIDTH_M = 1.3
+UPRIGHT_HEIGHT_M = (0.8, 2.3)
 
 
 class GeometryMeasurer:
@@ -87,9 +93,14 @@ class GeometryMeasurer:
         heights, ground = heights_from_foot_top(camera, foot, top)
         noise = self._pixel_noise(camera, foot, top)
         distance = np.hypot(*(ground - (-camera.R.T @ camera.t)[:2]).T)
+        widths = _widths_at_ground(camera, ground, np.array([d.box[2] for d in detections], dtype=float))
         for i, detection in enumerate(detections):
             if foot_ok[i] and np.all(np.isfinite(ground[i])):
                 detection.ground_xy_m = (float(ground[i, 0]), float(ground[i, 1]))
+            if whole[i] and np.isfinite(heights[i]) and np.isfinite(widths[i]) and heights[i] > 0:
+                # The network's height classed people it reads at half their height as "other";
+                # the calibrated camera measures both height and width in metres.
+                detection.cls = metric_class(float(heights[i]), float(widths[i]))
             height = heights[i]
             if not foot_ok[i] and np.isfinite(height) and 0.0 < height < camera.height_m:
                 # The top's ray descends (it is below the horizon): a nearer foot means a taller object.
@@ -128,6 +139,29 @@ class GeometryMeasurer:
             return float("inf")
         drop = max(camera_height_m - height_m, 0.0)
         return 0.5 * drop * extent_m / (distance_m + extent_m)
+
+
+def metric_class(height_m: float, width_m: float) -> str:
+    """Person / cyclist / vehicle / other from the geometry's height and the width at the foot.
+
+    The width is the box's at the foot's distance: a person's stride, a bicycle's length seen
+    from the side, a car's front or flank. A vehicle's geometry height reads high (its blob's top
+    is the far roof edge), which only pushes it further from the upright classes.
+    """
+    if width_m >= VEHICLE_MIN_WIDTH_M or height_m > UPRIGHT_HEIGHT_M[1]:
+        return "vehicle"
+    if height_m < UPRIGHT_HEIGHT_M[0]:
+        return "other"
+    return "person" if width_m < PERSON_MAX_WIDTH_M else "cyclist"
+
+
+def _widths_at_ground(camera: CameraInfo, ground_xy: np.ndarray, widths_px: np.ndarray) -> np.ndarray:
+    """Metres spanned by ``widths_px`` image pixels at each ground point's depth (NaN without one)."""
+    points = np.column_stack([ground_xy, np.zeros(len(ground_xy))])
+    depth = (points @ np.asarray(camera.R, float).T + np.asarray(camera.t, float).reshape(3))[:, 2]
+    focal = float(np.asarray(camera.K, float)[0, 0])
+    with np.errstate(invalid="ignore"):
+        return np.where(depth > 0, widths_px * depth / focal, np.nan)
 
 
 class NetworkScale:
