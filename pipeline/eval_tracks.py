@@ -657,8 +657,22 @@ def _json_default(value):
 # Picture of the per-track height series
 # --------------------------------------------------------------------------------------------
 
+def objects_followed(run: SequenceRun, min_visibility: float) -> dict[int, ObjectHeight]:
+    """Track id -> the ground-truth object it matched (of two, the one matched longer)."""
+    followed = {}
+    for obj in sorted(object_heights(run, min_visibility), key=lambda o: o.matched_frames):
+        for track_id in obj.track_ids:
+            followed[track_id] = obj
+    return followed
+
+
 def plot_height_series(run: SequenceRun, path: Path, min_visibility: float) -> None:
-    """Each confirmed track's height (line, ±1 std band) over frames, with the truth dashed."""
+    """Each confirmed track's height (line, ±1 std band) over frames, with its object's truth dashed.
+
+    A track drawn in colour follows a ground-truth object (the one it matched most often) and
+    its legend says which class and true height; tracks that follow no object (clutter,
+    fragments) are thin and grey.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -678,24 +692,35 @@ def plot_height_series(run: SequenceRun, path: Path, min_visibility: float) -> N
                 best = int(np.argmax(iou[row]))
                 if iou[row, best] > 0.3 and np.isfinite(frame.detections[best].height_m):
                     single[out.track_id].append((index, frame.detections[best].height_m))
-    truths = {o.object_id: o.true_height_m for o in object_heights(run, min_visibility)}
-    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
+    followed = objects_followed(run, min_visibility)
+    fig, (upright, others) = plt.subplots(1, 2, figsize=(13, 4.8), dpi=110, sharey=True,
+                                          gridspec_kw={"width_ratios": [3, 2]})
     colours = plt.get_cmap("tab10")
-    for n, (track_id, points) in enumerate(sorted(series.items())):
+    n = 0
+    for track_id, points in sorted(series.items()):
         frames, heights, stds = (np.array(v) for v in zip(*points))
+        obj = followed.get(track_id)
+        if obj is None:
+            others.plot(frames, heights, color="0.6", linewidth=0.8)
+            continue
+        ax = upright if obj.cls in ("person", "cyclist") else others
         colour = colours(n % 10)
-        ax.plot(frames, heights, color=colour, label=f"track {track_id}")
+        n += 1
+        ax.plot(frames, heights, color=colour, linewidth=1.6,
+                label=f"track {track_id}: {obj.cls}, truth {obj.true_height_m:.2f} m")
         ax.fill_between(frames, heights - stds, heights + stds, color=colour, alpha=0.2)
+        ax.axhline(obj.true_height_m, color=colour, linestyle="--", linewidth=0.8)
         if single[track_id]:
             ax.scatter(*zip(*single[track_id]), color=colour, s=6, alpha=0.6)
-    for height in truths.values():
-        ax.axhline(height, color="grey", linestyle="--", linewidth=0.7)
-    ax.set_xlabel("frame")
-    ax.set_ylabel("tracked height (m)")
-    ax.set_title(f"{run.name}: tracked height (line, ±1 std), single-frame (dots), truth (dashed)",
-                 fontsize=9)
-    if series:
-        ax.legend(loc="upper right", fontsize=7, ncol=2)
+    others.plot([], [], color="0.6", linewidth=0.8, label="tracks of no object")
+    upright.set_title("people and cyclists", fontsize=9)
+    others.set_title("vehicles and the rest", fontsize=9)
+    for ax in (upright, others):
+        ax.set_xlabel("frame")
+        ax.legend(loc="upper left", fontsize=7, ncol=2)
+    upright.set_ylabel("tracked height (m)")
+    fig.suptitle(f"{run.name} (camera {run.camera_height_m:.1f} m, {run.weather}, {run.time_of_day}): "
+                 "tracked height (line, ±1 std), single-frame (dots), truth (dashed)", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)

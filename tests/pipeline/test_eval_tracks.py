@@ -7,7 +7,7 @@ import pytest
 
 from pipeline.eval_tracks import (DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox,
                                   _trackeval_metrics, evaluate, mot_data, mot_metrics,
-                                  occlusion_events)
+                                  objects_followed, occlusion_events, plot_height_series)
 
 
 def _truth(object_id, x, visibility=1.0, height=1.75, cls="person"):
@@ -115,3 +115,14 @@ def test_true_heights_learn_no_network_scale():
 
     stages = dict(build_eval_stages(object(), Config(), "oracle", geometry=True))
     assert stages["geometry"].network_scale is None
+
+
+def test_the_height_picture_pairs_each_track_with_the_object_it_follows(tmp_path):
+    """Track 7 follows object 1, track 8 takes over object 2 from track 9 late, 5 is clutter."""
+    frames = [FrameRecord([_truth(1, 10 + 3 * i), _truth(2, 200)],
+                          [_out(7, 10 + 3 * i, 1.70), _out(9 if i < 5 else 8, 200, 1.80), _out(5, 400, 0.9)],
+                          [DetectionBox((10 + 3 * i, 50.0, 20.0, 60.0), 1.6)]) for i in range(20)]
+    followed = objects_followed(_run(frames), 0.3)
+    assert {t: o.object_id for t, o in followed.items()} == {7: 1, 8: 2, 9: 2}
+    plot_height_series(_run(frames), tmp_path / "heights.png", 0.3)
+    assert (tmp_path / "heights.png").stat().st_size > 10_000

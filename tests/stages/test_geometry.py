@@ -308,7 +308,8 @@ def test_network_heights_are_rescaled_by_their_ratio_to_geometry_on_people():
     rng = np.random.default_rng(0)
     for frame in range(SCALE_MIN_SAMPLES + 5):
         people = [_person_read_low(camera, rng.uniform(-3, 3), rng.uniform(10, 20), rng.uniform(1.6, 1.9), 0.7)]
-        # A cut person: no geometry, only the network sees it; and a vehicle, which never feeds the scale.
+        # A cut person: no geometry, only the network sees it; and a vehicle, which neither feeds
+        # the scale nor gets it.
         cut = dataclasses.replace(_person_read_low(camera, 0.0, 15.0, 1.8, 0.7), foot_cut=True)
         car = _widened(_person_read_low(camera, 2.0, 12.0, 1.5, 0.3), 120)
         measurer.process(packet_with(camera, people + [cut, car]))
@@ -318,6 +319,8 @@ def test_network_heights_are_rescaled_by_their_ratio_to_geometry_on_people():
             assert cut.height_noise_m == pytest.approx(np.hypot(0.15, NETWORK_PRIOR_SCALE_NOISE * 0.7 * 1.8))
     assert measurer.network_scale.scale == pytest.approx(1 / 0.7, rel=0.02)
     assert cut.geometry_height_m is None and cut.height_m == pytest.approx(1.8, rel=0.02)
+    # A scale learnt on thin people is not a vehicle's: its network height is left as it is.
+    assert car.cls == "vehicle" and car.height_m == pytest.approx(0.3 * 1.5)
     # The scale is known now (every person read 0.7x): back to the base noise, rescaled.
     assert cut.height_noise_m == pytest.approx(0.15 / 0.7, rel=0.02)
 
