@@ -194,7 +194,9 @@ def build_eval_stages(sequence, config: Config, heights: str, geometry: bool) ->
         # True heights are metric: there is no network scale to learn (nor to doubt).
         camera = replace(config.camera, rescale_network=False) if heights == "oracle" else config.camera
         stages.append(("geometry", GeometryMeasurer(camera)))
-    stages.append(("tracking", TrackingStage(config.tracking)))
+    # Nor does a true height map have a per-object bias for the height filter to learn.
+    tracking = replace(config.tracking, network_bias_share=0.0) if heights == "oracle" else config.tracking
+    stages.append(("tracking", TrackingStage(tracking)))
     return stages
 
 

@@ -84,6 +84,9 @@ class Detection:
     geometry_height_m: float | None = None
     """Second measurement: height from foot and top points through the calibrated camera."""
     geometry_noise_m: float | None = None
+    geometry_bias_m: float | None = None
+    """The part of ``geometry_noise_m`` that repeats on this object frame after frame (its crown and
+    soles' pixels, its shape), without the camera-height scale that every object shares."""
     geometry_min_height_m: float | None = None
     """Lower bound on the height when the foot is cut or hidden: the true foot lies lower in the
     image, nearer the camera, where the top's ray stands higher (calibrated cameras only)."""

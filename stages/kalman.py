@@ -9,7 +9,7 @@ Two independent filters per track:
   applied to this state (``warp``), never to the height.
 * ``HeightFilter``: the object's height in metres, a random walk with near-zero process noise
   (objects do not grow), so every frame is one more measurement of the same number; beside it,
-  the network's bias on this object, which only a second channel (geometry) can measure.
+  each channel's (network, geometry) bias on this object, which frames do not average away.
   A second measurement channel (geometry) is just a second ``update`` in the same frame
   (sequential update: independent measurements may be applied one after the other).
 
@@ -140,40 +140,56 @@ class MotionFilter:
 
 
 class HeightFilter:
-    """Object height in metres: a constant with a tiny random walk, plus the network's bias on it.
+    """Object height in metres: a constant with a tiny random walk, plus each channel's bias on it.
 
     Measurements come through named channels ("network", "geometry"); several in one frame are
     applied one after the other (sequential update of independent measurements), and the
     filter remembers which channels have contributed (``source``).
 
-    The network's error on one object is not white noise: it reads a given walker 20 cm low in
-    every frame (its colours, its pose, the scene behind it stay the same), so averaging its
-    frames converges on the wrong number with a shrinking std. The state therefore holds that
-    bias ``b`` beside the height ``H``: a network height measures ``H + b``, a geometry height
-    measures ``H``. ``b`` starts at 0 with a std of ``bias_share`` of the height and hardly
-    moves. With the network alone, ``H`` is the network's mean and its std never falls below
-    the bias prior (honest: more frames of a biased reading do not make it right); where the
-    geometry measures too, the filter learns ``b`` and the height follows the geometry, while a
-    frame with only a network height (feet cut by the frame) is corrected by the learnt bias.
+    Neither channel's error on one object is white noise. The network reads a given walker 20 cm
+    low in every frame (its colours, its pose, the scene behind it stay the same); the geometry
+    takes the same hair for the crown and the same shoes for the soles, a pixel or two off in
+    every frame. Averaging frames converges on the wrong number with a shrinking std. The state
+    therefore holds both biases beside the height, ``[H, b_n, b_g]``: a network height measures
+    ``H + b_n``, a geometry height ``H + b_g``. Each bias starts at 0 with its own prior std (the
+    network's ``bias_share`` of the height; the geometry's ``geometry_bias_factor`` times its
+    first measurement's noise, which shrinks with the object's size in pixels) and stays constant.
+    Frames then average only the white noise: the std never falls below what the biases allow,
+    and where both channels measure, the height settles between them by their bias priors (the
+    shipped network's 20 % against a few pixels: nearly the geometry), while a frame with only a
+    network height (feet cut by the frame) is corrected by the learnt difference.
     """
 
-    # Channels whose measurements carry the network's bias.
-    BIASED_CHANNELS = ("network",)
+    CHANNEL_BIAS = {"network": 1, "geometry": 2}
+    """State index of each channel's bias."""
 
     def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = "network",
-                 bias_share: float = 0.0):
-        kf = KalmanFilter(dim_x=2, dim_z=1)
-        bias_var = (bias_share * max(height_m, 0.0)) ** 2
-        kf.x = np.array([[height_m], [0.0]])
-        if channel in self.BIASED_CHANNELS:
-            # z = H + b: the height is as unsure as the measurement and the bias together.
-            kf.P = np.array([[std_m ** 2 + bias_var, -bias_var], [-bias_var, bias_var]])
-        else:
-            kf.P = np.diag([std_m ** 2, bias_var])
-        kf.F = np.eye(2)
-        kf.Q = np.diag([process_noise_m ** 2, process_noise_m ** 2])
+                 bias_share: float = 0.0, geometry_bias_factor: float = 0.0, bias_std_m: float | None = None):
+        kf = KalmanFilter(dim_x=3, dim_z=1)
+        kf.x = np.array([[height_m], [0.0], [0.0]])
+        kf.P = np.diag([std_m ** 2, (bias_share * max(height_m, 0.0)) ** 2, 0.0])
+        kf.F = np.eye(3)
+        # The biases are constants of the object; the height's own random walk lets readings drift.
+        kf.Q = np.diag([process_noise_m ** 2, 0.0, 0.0])
         self.kf = kf
-        self.updates: dict[str, int] = {channel: 1}
+        self.geometry_bias_factor = geometry_bias_factor
+        self.updates: dict[str, int] = {}
+        self._start_bias(channel, std_m if bias_std_m is None else bias_std_m)
+        bias = self.CHANNEL_BIAS.get(channel)
+        if bias is not None:
+            # z = H + b: the height is as unsure as the measurement and the bias together.
+            variance = kf.P[bias, bias]
+            kf.P[0, 0] += variance
+            kf.P[0, bias] = kf.P[bias, 0] = -variance
+        self.updates[channel] = 1
+
+    def _start_bias(self, channel: str, bias_std_m: float) -> None:
+        """A channel's first measurement sets its bias prior: the geometry's scales with the part of
+        its noise that repeats on this object (pixels and shape, not the camera height that every
+        object and the network's scale share)."""
+        if channel == "geometry" and not self.updates.get(channel):
+            self.kf.P[2, :] = self.kf.P[:, 2] = 0.0
+            self.kf.P[2, 2] = (self.geometry_bias_factor * bias_std_m) ** 2
 
     @property
     def source(self) -> str:
@@ -190,19 +206,32 @@ class HeightFilter:
         return float(np.sqrt(self.kf.P[0, 0]))
 
     def _row(self, channel: str) -> np.ndarray:
-        return np.array([[1.0, 1.0 if channel in self.BIASED_CHANNELS else 0.0]])
+        row = np.array([[1.0, 0.0, 0.0]])
+        if channel in self.CHANNEL_BIAS:
+            row[0, self.CHANNEL_BIAS[channel]] = 1.0
+        return row
 
     def predict(self) -> None:
         self.kf.predict()
+
+    def expected_std_m(self, channel: str = "network") -> float:
+        """Std of what the state says this channel reads (height plus the channel's bias)."""
+        row = self._row(channel)
+        return float(np.sqrt((row @ self.kf.P @ row.T)[0, 0]))
 
     def normalized_residual(self, height_m: float, std_m: float, channel: str = "network") -> float:
         """How many innovation standard deviations a measurement lies from the state."""
         row = self._row(channel)
         expected = float((row @ self.kf.x)[0, 0])
-        variance = float((row @ self.kf.P @ row.T)[0, 0]) + std_m ** 2
+        variance = self.expected_std_m(channel) ** 2 + std_m ** 2
+        if channel == "geometry" and not self.updates.get(channel):
+            variance += (self.geometry_bias_factor * std_m) ** 2
         return abs(height_m - expected) / float(np.sqrt(variance))
 
-    def update(self, height_m: float, std_m: float, channel: str = "network") -> None:
+    def update(self, height_m: float, std_m: float, channel: str = "network",
+               bias_std_m: float | None = None) -> None:
+        """One measurement; ``bias_std_m``: its per-object systematic part (default: all of ``std_m``)."""
+        self._start_bias(channel, std_m if bias_std_m is None else bias_std_m)
         self.kf.update(np.array([[height_m]]), R=np.array([[std_m ** 2]]), H=self._row(channel))
         self.updates[channel] = self.updates.get(channel, 0) + 1
 
@@ -247,9 +276,12 @@ class FilterFactory:
     def __init__(self, config: TrackingConfig):
         self.height_process_noise_m = config.height_process_noise_m
         self.network_bias_share = config.network_bias_share
+        self.geometry_bias_factor = config.geometry_bias_factor
 
     def create_motion_filter(self, box: Box) -> MotionFilter:
         return MotionFilter(box)
 
-    def create_height_filter(self, height_m: float, std_m: float, channel: str = "network") -> HeightFilter:
-        return HeightFilter(height_m, std_m, self.height_process_noise_m, channel, self.network_bias_share)
+    def create_height_filter(self, height_m: float, std_m: float, channel: str = "network",
+                             bias_std_m: float | None = None) -> HeightFilter:
+        return HeightFilter(height_m, std_m, self.height_process_noise_m, channel, self.network_bias_share,
+                            self.geometry_bias_factor, bias_std_m)

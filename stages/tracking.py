@@ -75,6 +75,9 @@ MIN_SHARE_IN_VIEW = 0.25
 RECOVERY_BUFFER_PER_MISS = 0.05
 RECOVERY_MAX_BUFFER = 0.5
 RECOVERY_MAX_SIZE_RATIO = 1.5
+# A track not seen last frame, or left over for the second round, may take a box at most this
+# much taller or shorter than its own.
+COASTING_MAX_SIZE_RATIO = 2.0
 # Tracks seen within this many frames may claim their share of a merged blob (their prediction
 # is still good).
 MERGE_MAX_MISSES = 1
@@ -235,6 +238,12 @@ class ObjectTracker:
         height_gap = self._height_gaps(detections)
         allowed = ((iou >= self.config.iou_gate) | (votes >= self.config.min_vote_share)) & (distance <= gate)
         allowed &= height_gap <= 1.0
+        # A coasting track's box grows uncertain in size too; an object seen again is not half or
+        # twice as tall (Oxford: a walker cut by the top edge, coasting, took the legs of another).
+        heights = np.array([b[3] for b in boxes], dtype=float)
+        for row, track in enumerate(self.tracks):
+            if track.misses > 0:
+                allowed[row] &= _alike_in_size(track.motion.box[3], heights, COASTING_MAX_SIZE_RATIO) > 0
         cost = ((1.0 - iou) + self.config.vote_weight * (1.0 - votes)
                 + MOTION_WEIGHT * np.minimum(distance / gate, 1.0) + HEIGHT_WEIGHT * np.minimum(height_gap, 1.0)
                 + DIRECTION_WEIGHT * self._direction_mismatch(range(n_tracks), boxes))
@@ -281,20 +290,21 @@ class ObjectTracker:
         if not candidates or not detection_cols:
             return ([], track_rows), ([], detection_cols)
         boxes = [detections[c].box for c in detection_cols]
+        box_heights = np.array([b[3] for b in boxes], dtype=float)
         iou = iou_matrix([self.tracks[r].last_observation for r in candidates], boxes)
+        iou *= np.array([_alike_in_size(self.tracks[r].motion.box[3], box_heights, COASTING_MAX_SIZE_RATIO)
+                         for r in candidates])
         # Or where the prediction went, with a buffer that grows while the object stays hidden
         # (C-BIoU): a walker's speed estimate is a few per cent off, and over a 2 s occlusion
         # that put the prediction most of a box width away from where the walker came out.
         # A buffer forgives position, not size: the box must stand about as tall as the track's.
-        box_heights = np.array([b[3] for b in boxes], dtype=float)
         for i, r in enumerate(candidates):
             track = self.tracks[r]
             buffer = min(RECOVERY_BUFFER_PER_MISS * track.misses, RECOVERY_MAX_BUFFER)
             if buffer > 0:
                 buffered = iou_matrix([_buffered(track.motion.box, buffer)], [_buffered(b, buffer) for b in boxes])[0]
-                ratio = box_heights / max(track.motion.box[3], 1e-9)
-                alike = (ratio >= 1 / RECOVERY_MAX_SIZE_RATIO) & (ratio <= RECOVERY_MAX_SIZE_RATIO)
-                iou[i] = np.maximum(iou[i], np.where(alike, buffered, 0.0))
+                alike = _alike_in_size(track.motion.box[3], box_heights, RECOVERY_MAX_SIZE_RATIO)
+                iou[i] = np.maximum(iou[i], buffered * alike)
         gaps = self._height_gaps([detections[c] for c in detection_cols])[candidates]
         allowed = (iou >= self.config.iou_gate) & (gaps <= 1.0)
         cost = (1.0 - iou + HEIGHT_WEIGHT * np.minimum(gaps, 1.0)
@@ -371,7 +381,7 @@ class ObjectTracker:
                 noise *= TOP_LOST_NOISE_FACTOR
             if self.config.stature_window > 0 and track.cls in WALKER_CLASSES:
                 height = track.stature.add(height, noise)
-            channels.append(("network", height, noise))
+            channels.append(("network", height, noise, None))
         # Geometry assumes the top lies above the foot. For vehicles the blob's top is the far
         # roof edge, metres behind the foot, and on generator data their geometry heights came out
         # ~0.8 m high (median): used for them only when the network gives no height at all.
@@ -382,33 +392,36 @@ class ObjectTracker:
             # No stature window here: box points wobble ~20 px (Oxford, against labels) under a
             # stated 2 px, so a window's upper quantile picks the boxes that overshoot, not the
             # top of the gait (Oxford: mean 1.81 -> 1.80 m, median error 4.5 -> 3.8 cm without).
-            channels.append(("geometry", height, noise))
-        for channel, height, noise in channels:
+            channels.append(("geometry", height, noise, detection.geometry_bias_m))
+        for channel, height, noise, bias_std in channels:
             if track.height is None:
-                track.height = self.filters.create_height_filter(height, noise, channel)
+                track.height = self.filters.create_height_filter(height, noise, channel, bias_std)
                 continue
             settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
             if settled and (track.height.normalized_residual(height, noise, channel)
                             > self.config.height_gate_sigma):
                 rejected = track.height_rejections.setdefault(channel, [])
                 rejected.append((height, noise))
-                if self._outweighs(rejected, track.height):
+                if self._outweighs(rejected, track.height, channel):
                     track.height = self._height_from(rejected, channel)
                     track.height_rejections.clear()
                 continue
             track.height_rejections.pop(channel, None)
-            track.height.update(height, noise, channel)
+            track.height.update(height, noise, channel, bias_std)
 
-    def _outweighs(self, rejected: list[tuple[float, float]], height: HeightFilter) -> bool:
+    def _outweighs(self, rejected: list[tuple[float, float]], height: HeightFilter, channel: str) -> bool:
         """A run of rejections that says more than the state: the state was built on outliers.
 
         Counted per channel (a network accepted every frame must not hide a geometry channel
         rejected every frame: a walker born as a 3 m "vehicle" blob), and weighed by information
-        (sum of 1/noise^2 against 1/variance): eight frames of a box overshooting do not undo forty
-        frames of a settled height, nor does a noisy network undo a geometry-made one.
+        (sum of 1/noise^2 against 1/variance of what the state expects this channel to read; the
+        channel's own bias is common to both, so it does not count): eight frames of a box
+        overshooting do not undo forty frames of a settled height, nor does a noisy network undo
+        a geometry-made one.
         """
         information = sum(1.0 / noise ** 2 for _, noise in rejected)
-        return len(rejected) >= HEIGHT_RESTART_AFTER and information > 1.0 / height.std_m ** 2
+        return (len(rejected) >= HEIGHT_RESTART_AFTER
+                and information > 1.0 / height.expected_std_m(channel) ** 2)
 
     def _height_from(self, measurements: list[tuple[float, float]], channel: str) -> HeightFilter:
         """A fresh height filter made of these measurements of one channel."""
@@ -456,6 +469,12 @@ def _left_the_view(track: _TrackState, frame_size: tuple[int, int] | None) -> bo
 def _top_lost(predicted_box, box) -> bool:
     """The detection's top edge is well below the predicted one: its top is hidden or cut."""
     return box[1] - predicted_box[1] > TOP_LOST_SHARE * predicted_box[3]
+
+
+def _alike_in_size(height_px: float, heights_px: np.ndarray, max_ratio: float) -> np.ndarray:
+    """1.0 where a box stands within ``max_ratio`` of ``height_px`` tall (either way), else 0.0."""
+    ratio = heights_px / max(height_px, 1e-9)
+    return ((ratio >= 1 / max_ratio) & (ratio <= max_ratio)).astype(float)
 
 
 def _buffered(box, scale: float) -> tuple[float, float, float, float]:

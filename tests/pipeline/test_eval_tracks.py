@@ -109,12 +109,15 @@ def test_objects_too_small_to_be_required_give_no_occlusion_events():
 
 
 def test_true_heights_learn_no_network_scale():
-    """True height maps are metric: the geometry stage must not rescale them, nor doubt their scale."""
+    """True height maps are metric and exact: the geometry stage must not rescale them, nor doubt
+    their scale, and the height filter gives them no per-object bias (the model's keep theirs)."""
     from pipeline.config import Config
     from pipeline.eval_tracks import build_eval_stages
 
     stages = dict(build_eval_stages(object(), Config(), "oracle", geometry=True))
     assert stages["geometry"].network_scale is None
+    assert stages["tracking"].tracker.config.network_bias_share == 0.0
+    assert Config().tracking.network_bias_share > 0.0
 
 
 def test_the_height_picture_pairs_each_track_with_the_object_it_follows(tmp_path):

@@ -191,6 +191,8 @@ def test_self_calibrated_camera_height_uncertainty_widens_the_noise():
     assert uncertain.geometry_height_m == exact.geometry_height_m
     # 10 % of the camera height is 10 % of the object's height, added in quadrature.
     assert uncertain.geometry_noise_m == pytest.approx(np.hypot(exact.geometry_noise_m, 0.175), rel=1e-6)
+    # ... but it is no bias of this object: every object and the network's scale share it.
+    assert uncertain.geometry_bias_m == exact.geometry_bias_m == pytest.approx(exact.geometry_noise_m)
 
 
 def test_long_objects_get_more_noise_than_people():
