@@ -26,7 +26,7 @@ import io
 import json
 import sys
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -58,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ground-truth boxes shorter than this (pixels) are don't-care (default 20)")
     parser.add_argument("--min-frames", type=int, default=10,
                         help="objects matched in fewer frames are left out of the height errors")
+    parser.add_argument("--misses", action="store_true",
+                        help="also print why required objects were missed (not detected, merged, box off, "
+                             "detected but not tracked) per class, size, time of day, weather")
     parser.add_argument("--json", metavar="FILE", help="write the full report as JSON")
     parser.add_argument("--plot", metavar="PNG", help="picture of per-track height series (first sequence)")
     parser.add_argument("--record", metavar="RRD", help="rerun recording of the first sequence")
@@ -95,6 +98,8 @@ def main(args: argparse.Namespace, config: Config) -> int:
     report["geometry"] = not args.no_geometry
     report["wall_s"] = round(time.perf_counter() - start, 1)
     print(format_report(report))
+    if args.misses:
+        print(format_misses(report["misses"]))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(report, indent=2, default=_json_default))
@@ -579,6 +584,75 @@ def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames:
 
 
 # --------------------------------------------------------------------------------------------
+# Misses: why a required object had no track box
+# --------------------------------------------------------------------------------------------
+
+MISS_KINDS = ("tracked", "detected, no track", "merged with others", "box off", "not detected")
+# A detection overlapping a truth box at least this much (IoU) is about that object, if off.
+MISS_NEAR_IOU = 0.2
+# A detection covering this share of another object's box holds that object too.
+MISS_COVER_SHARE = 0.3
+
+
+def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: float = 0.0) -> dict[str, dict]:
+    """Every required truth box, by what became of it, per group (class, box height, time of day,
+    weather, camera height): tracked (a track box at IoU >= 0.5); detected but no track there;
+    its detection merged with other objects; its detection's box off (IoU 0.2-0.5); not detected.
+
+    It says where the missing HOTA is: in detection (the height map and the foreground) or in
+    tracking.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    from stages.association import intersection_matrix
+
+    counts: dict[str, Counter] = defaultdict(Counter)
+    for run in runs:
+        for frame in run.frames:
+            cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
+            if not cared:
+                continue
+            outputs = [o for o in frame.tracks if o.updated]
+            tracked = set()
+            if outputs:
+                iou = iou_matrix([t.box for t in cared], [o.box for o in outputs])
+                tracked = {r for r, c in zip(*linear_sum_assignment(-iou)) if iou[r, c] >= MATCH_IOU}
+            detections = [d.box for d in frame.detections]
+            visible = [t.box for t in frame.truth if t.visibility > 0.05]
+            near = iou_matrix([t.box for t in cared], detections) if detections else np.zeros((len(cared), 0))
+            for i, truth in enumerate(cared):
+                best = int(np.argmax(near[i])) if near.shape[1] else -1
+                overlap = near[i, best] if best >= 0 else 0.0
+                if i in tracked:
+                    kind = "tracked"
+                elif overlap >= MATCH_IOU:
+                    kind = "detected, no track"
+                elif overlap >= MISS_NEAR_IOU:
+                    areas = np.array([b[2] * b[3] for b in visible], dtype=float)
+                    cover = intersection_matrix(visible, [detections[best]])[:, 0] / np.maximum(areas, 1e-9)
+                    kind = "merged with others" if (cover > MISS_COVER_SHARE).sum() >= 2 else "box off"
+                else:
+                    kind = "not detected"
+                h = truth.box[3]
+                size = "< 40" if h < 40 else ("40-80" if h < 80 else ">= 80")
+                for group in ("all", f"class {truth.cls}", f"box {size} px", f"{run.time_of_day}",
+                              f"weather {run.weather}", f"camera at {run.camera_height_m:.1f} m"):
+                    counts[group][kind] += 1
+    return {group: {kind: int(c[kind]) for kind in MISS_KINDS} for group, c in counts.items()}
+
+
+def format_misses(breakdown: dict[str, dict]) -> str:
+    lines = ["  required boxes by what became of them (share of the group's boxes):",
+             f"    {'group':<20}" + "".join(f"{kind:>20}" for kind in MISS_KINDS) + "   boxes"]
+    for group in sorted(breakdown, key=lambda g: (g != "all", g)):
+        row = breakdown[group]
+        total = max(sum(row.values()), 1)
+        lines.append(f"    {group:<20}" + "".join(f"{row[kind] / total:20.2f}" for kind in MISS_KINDS)
+                     + f"   {sum(row.values()):5d}")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
 # Report
 # --------------------------------------------------------------------------------------------
 
@@ -604,6 +678,7 @@ def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: i
         "height_by_camera_height": by_camera,
         "height_by_weather": by_weather,
         "occlusions": events,
+        "misses": miss_breakdown(runs, min_visibility, min_box_px),
         "objects": [asdict(o) for o in objects],
     }
 

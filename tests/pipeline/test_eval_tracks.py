@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.eval_tracks import (DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox,
-                                  _trackeval_metrics, evaluate, mot_data, mot_metrics,
+                                  _trackeval_metrics, evaluate, miss_breakdown, mot_data, mot_metrics,
                                   objects_followed, occlusion_events, plot_height_series)
 
 
@@ -129,3 +129,17 @@ def test_the_height_picture_pairs_each_track_with_the_object_it_follows(tmp_path
     assert {t: o.object_id for t, o in followed.items()} == {7: 1, 8: 2, 9: 2}
     plot_height_series(_run(frames), tmp_path / "heights.png", 0.3)
     assert (tmp_path / "heights.png").stat().st_size > 10_000
+
+
+def test_misses_say_whether_detection_or_tracking_lost_an_object():
+    """Object 1 tracked; 2 detected but no track there; 3 and 4 in one merged detection; 5 under
+    a detection twice its width (IoU 0.5 is not reached); 6 not detected at all."""
+    truth = [_truth(i, 100.0 * i) for i in range(1, 7)]
+    truth[3] = _truth(4, 325.0)                                   # beside object 3 (x 300)
+    detections = [DetectionBox((100.0, 50.0, 20.0, 60.0), 1.7), DetectionBox((200.0, 50.0, 20.0, 60.0), 1.7),
+                  DetectionBox((300.0, 50.0, 45.0, 60.0), 1.7), DetectionBox((495.0, 50.0, 45.0, 60.0), 1.7)]
+    run = _run([FrameRecord(truth, [_out(7, 100.0)], detections)])
+    misses = miss_breakdown([run], 0.3)
+    assert misses["all"] == {"tracked": 1, "detected, no track": 1, "merged with others": 2,
+                             "box off": 1, "not detected": 1}
+    assert misses["class person"] == misses["all"] and sum(misses["box 40-80 px"].values()) == 6
