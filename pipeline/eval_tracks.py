@@ -12,6 +12,8 @@ the shipped network or, with ``--heights oracle``, from the ground-truth height 
   per camera height.
 * Occlusions: objects hidden for a while and seen again, whether their track kept its id and
   its height.
+* Misses (``--misses``): every required box by what became of it (tracked, detected but not
+  tracked, merged with other objects, box off, not detected), per class, size and scene.
 
 Ground-truth boxes that are mostly hidden (``--min-visibility``) are "don't care": they are
 neither required nor penalised, and a track box on one is dropped (as MOTChallenge does with

@@ -11,8 +11,10 @@ One frame, in order:
    predicted boxes of two or more tracks seen a frame ago (walkers passing close: one blob) is
    cut into one piece per track (``merged_blobs``); the pieces move boxes, not heights.
 3. Associate (Hungarian) on a cost mixing IoU, matched-point votes, the Mahalanobis distance
-   of the box and the height difference; pairs outside the motion gate, or with neither
-   overlap nor votes, are not allowed.
+   of the box, the height difference and how much the step from the track's last observed box
+   goes against its motion (OC-SORT's momentum); pairs outside the motion gate, with neither
+   overlap nor votes, or (for a track not seen last frame) with a box half or twice its height,
+   are not allowed.
 4. Second chance (OC-SORT's observation-centric recovery): tracks left over are matched on
    the IoU of their *last observed* box, which does not drift while the object is hidden, or
    of their predicted box grown by a buffer that widens with every frame missed (C-BIoU).
@@ -24,9 +26,10 @@ One frame, in order:
    upper quantile of a short window: stature, not the gait's mean dip nor a blob that lost its
    feet or head for a frame); a network height below the geometry's lower bound (feet cut off)
    is raised to it; outliers beyond ``height_gate_sigma`` are skipped, and a channel whose run
-   of rejections outweighs the state restarts it. The height state carries the network's bias
-   on this object beside the height (``HeightFilter``): where geometry measures too, the bias
-   is learnt and the height follows the geometry.
+   of rejections outweighs the state restarts it. The height state carries each channel's bias
+   on this object beside the height (``HeightFilter``): where both measure, the height settles
+   between them by their bias priors (with the shipped network: nearly the geometry), and its
+   std never falls below what those biases allow.
 7. Tracks are confirmed after ``min_hits`` hits in a row (and ``confirm_s`` seconds of them)
    and dropped after ``max_misses`` frames without a hit (and ``max_miss_s`` seconds): durations,
    so that a 25 fps camera and a 10 fps one behave alike. A tentative track is dropped at its
