@@ -113,8 +113,8 @@ class TrackingConfig:
     network_bias_share: float = 0.2
     """Std of the network's bias on one object, as a share of its height (constant over frames)."""
     geometry_bias_factor: float = 1.0
-    """Std of the geometry's bias on one object, in units of its first measurement's pixel and
-    shape noise (trk_dev20: per-object mean error rms 16.5 cm against 17.8 cm stated noise)."""
+    """Std of the geometry's bias on one object, in units of its first measurement's pixel noise
+    (trk_dev20 people: per-object mean error rms 16.5 cm against 17.8 cm stated noise)."""
     motion_gate_chi2: float = 13.28
     """Mahalanobis gate of a detection box against a track's prediction (chi-square, 4 dof; 99 %)."""
     vote_weight: float = 0.5

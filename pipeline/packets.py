@@ -85,8 +85,10 @@ class Detection:
     """Second measurement: height from foot and top points through the calibrated camera."""
     geometry_noise_m: float | None = None
     geometry_bias_m: float | None = None
-    """The part of ``geometry_noise_m`` that repeats on this object frame after frame (its crown and
-    soles' pixels, its shape), without the camera-height scale that every object shares."""
+    """The part of ``geometry_noise_m`` that repeats on this object frame after frame: its crown and
+    soles' pixels. Not the camera-height scale that every object shares, nor the shape term, whose
+    assumed extent follows the class and flickers with it (Oxford: a walker born as a wide
+    "cyclist" blob kept a 12 cm bias prior for good)."""
     geometry_min_height_m: float | None = None
     """Lower bound on the height when the foot is cut or hidden: the true foot lies lower in the
     image, nearer the camera, where the top's ray stands higher (calibrated cameras only)."""

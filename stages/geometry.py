@@ -113,7 +113,7 @@ class GeometryMeasurer:
             scale_error = height * self.camera_height_std_m / camera.height_m
             detection.geometry_height_m = float(height)
             detection.geometry_noise_m = float(np.sqrt(noise[i] ** 2 + shape_error ** 2 + scale_error ** 2))
-            detection.geometry_bias_m = float(np.hypot(noise[i], shape_error))
+            detection.geometry_bias_m = float(noise[i])
 
     def _pixel_noise(self, camera: CameraInfo, foot: np.ndarray, top: np.ndarray) -> np.ndarray:
         """Std of the height from independent noise on the four point coordinates (central differences)."""

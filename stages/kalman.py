@@ -185,8 +185,8 @@ class HeightFilter:
 
     def _start_bias(self, channel: str, bias_std_m: float) -> None:
         """A channel's first measurement sets its bias prior: the geometry's scales with the part of
-        its noise that repeats on this object (pixels and shape, not the camera height that every
-        object and the network's scale share)."""
+        its noise that repeats on this object (its pixels; not the camera height that every object
+        and the network's scale share)"""
         if channel == "geometry" and not self.updates.get(channel):
             self.kf.P[2, :] = self.kf.P[:, 2] = 0.0
             self.kf.P[2, 2] = (self.geometry_bias_factor * bias_std_m) ** 2
