@@ -273,6 +273,17 @@ def iou_matrix(boxes_a, boxes_b) -> np.ndarray:
     return _iou(boxes_a, boxes_b)
 
 
+def matched_at_iou(boxes_a, boxes_b) -> list[tuple[int, int]]:
+    """One-to-one (Hungarian on IoU) pairs of ``a`` and ``b`` indices whose IoU reaches ``MATCH_IOU``:
+    the matching of CLEAR and Identity, used for everything here that asks "which track is this"."""
+    from scipy.optimize import linear_sum_assignment
+
+    if len(boxes_a) == 0 or len(boxes_b) == 0:
+        return []
+    iou = iou_matrix(boxes_a, boxes_b)
+    return [(int(r), int(c)) for r, c in zip(*linear_sum_assignment(-iou)) if iou[r, c] >= MATCH_IOU]
+
+
 def cared_for(truth: TruthBox, min_visibility: float, min_box_px: float) -> bool:
     """Whether a ground-truth box is required (else don't-care): visible enough and big enough."""
     return truth.visibility >= min_visibility and truth.box[3] >= min_box_px
@@ -476,8 +487,6 @@ class ObjectHeight:
 
 def object_heights(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -> list[ObjectHeight]:
     """Per ground-truth object: its track's final height, and every single-frame estimate."""
-    from scipy.optimize import linear_sum_assignment
-
     truth_heights: dict[int, list[float]] = defaultdict(list)
     classes: dict[int, str] = {}
     track_votes: dict[int, dict[int, int]] = defaultdict(lambda: defaultdict(int))
@@ -491,18 +500,13 @@ def object_heights(run: SequenceRun, min_visibility: float, min_box_px: float = 
         if not cared:
             continue
         outputs = [o for o in frame.tracks if o.updated]
-        if outputs:
-            iou = iou_matrix([t.box for t in cared], [o.box for o in outputs])
-            for r, c in zip(*linear_sum_assignment(-iou)):
-                if iou[r, c] >= MATCH_IOU:
-                    key = (cared[r].object_id, outputs[c].track_id)
-                    track_votes[key[0]][key[1]] += 1
-                    last_height[key] = (outputs[c].height_m, outputs[c].height_std_m)
-        if frame.detections:
-            iou = iou_matrix([t.box for t in cared], [d.box for d in frame.detections])
-            for r, c in zip(*linear_sum_assignment(-iou)):
-                if iou[r, c] >= MATCH_IOU and np.isfinite(frame.detections[c].height_m):
-                    single[cared[r].object_id].append(frame.detections[c].height_m)
+        for r, c in matched_at_iou([t.box for t in cared], [o.box for o in outputs]):
+            key = (cared[r].object_id, outputs[c].track_id)
+            track_votes[key[0]][key[1]] += 1
+            last_height[key] = (outputs[c].height_m, outputs[c].height_std_m)
+        for r, c in matched_at_iou([t.box for t in cared], [d.box for d in frame.detections]):
+            if np.isfinite(frame.detections[c].height_m):
+                single[cared[r].object_id].append(frame.detections[c].height_m)
     results = []
     for object_id, heights in truth_heights.items():
         # Stature: the gait's hip drop only lowers the head, so the truth is the largest value.
@@ -550,17 +554,11 @@ def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames:
     Before and after, the object must be required as the MOT metrics require it (``cared_for``):
     a car a few pixels high on the horizon is don't-care there, and no occlusion event here.
     """
-    from scipy.optimize import linear_sum_assignment
-
     history: dict[int, list[tuple[int, float, bool, int | None, float | None]]] = defaultdict(list)
     for index, frame in enumerate(run.frames):
         outputs = [o for o in frame.tracks if o.updated]
-        matched: dict[int, OutputBox] = {}
-        if frame.truth and outputs:
-            iou = iou_matrix([t.box for t in frame.truth], [o.box for o in outputs])
-            for r, c in zip(*linear_sum_assignment(-iou)):
-                if iou[r, c] >= MATCH_IOU:
-                    matched[frame.truth[r].object_id] = outputs[c]
+        matched = {frame.truth[r].object_id: outputs[c]
+                   for r, c in matched_at_iou([t.box for t in frame.truth], [o.box for o in outputs])}
         for t in frame.truth:
             out = matched.get(t.object_id)
             history[t.object_id].append((index, t.visibility, cared_for(t, min_visibility, min_box_px),
@@ -604,8 +602,6 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
     It says where the missing HOTA is: in detection (the height map and the foreground) or in
     tracking.
     """
-    from scipy.optimize import linear_sum_assignment
-
     from stages.association import intersection_matrix
 
     counts: dict[str, Counter] = defaultdict(Counter)
@@ -615,10 +611,7 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
             if not cared:
                 continue
             outputs = [o for o in frame.tracks if o.updated]
-            tracked = set()
-            if outputs:
-                iou = iou_matrix([t.box for t in cared], [o.box for o in outputs])
-                tracked = {r for r, c in zip(*linear_sum_assignment(-iou)) if iou[r, c] >= MATCH_IOU}
+            tracked = {r for r, _ in matched_at_iou([t.box for t in cared], [o.box for o in outputs])}
             detections = [d.box for d in frame.detections]
             visible = [t.box for t in frame.truth if t.visibility > 0.05]
             near = iou_matrix([t.box for t in cared], detections) if detections else np.zeros((len(cared), 0))

@@ -152,8 +152,9 @@ class HeightFilter:
     every frame. Averaging frames converges on the wrong number with a shrinking std. The state
     therefore holds both biases beside the height, ``[H, b_n, b_g]``: a network height measures
     ``H + b_n``, a geometry height ``H + b_g``. Each bias starts at 0 with its own prior std (the
-    network's ``bias_share`` of the height; the geometry's ``geometry_bias_factor`` times its
-    first measurement's noise, which shrinks with the object's size in pixels) and stays constant.
+    network's ``bias_share`` of the height; the geometry's ``geometry_bias_factor`` times the
+    per-object part of its first measurement's noise, its pixels, which shrinks with the object's
+    size in pixels) and stays constant.
     Frames then average only the white noise: the std never falls below what the biases allow,
     and where both channels measure, the height settles between them by their bias priors (the
     shipped network's 20 % against a few pixels: nearly the geometry), while a frame with only a

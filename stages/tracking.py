@@ -243,10 +243,10 @@ class ObjectTracker:
         allowed &= height_gap <= 1.0
         # A coasting track's box grows uncertain in size too; an object seen again is not half or
         # twice as tall (Oxford: a walker cut by the top edge, coasting, took the legs of another).
-        heights = np.array([b[3] for b in boxes], dtype=float)
+        box_heights = np.array([b[3] for b in boxes], dtype=float)
         for row, track in enumerate(self.tracks):
             if track.misses > 0:
-                allowed[row] &= _alike_in_size(track.motion.box[3], heights, COASTING_MAX_SIZE_RATIO) > 0
+                allowed[row] &= _alike_in_size(track.motion.box[3], box_heights, COASTING_MAX_SIZE_RATIO) > 0
         cost = ((1.0 - iou) + self.config.vote_weight * (1.0 - votes)
                 + MOTION_WEIGHT * np.minimum(distance / gate, 1.0) + HEIGHT_WEIGHT * np.minimum(height_gap, 1.0)
                 + DIRECTION_WEIGHT * self._direction_mismatch(range(n_tracks), boxes))
