@@ -96,6 +96,20 @@ class Detection:
     """Foot point on the ground plane in world metres (calibrated cameras only)."""
     mask: np.ndarray | None = None
     """Bool mask of the object's pixels inside its box (box-sized), where the extractor has one."""
+    outline: np.ndarray | None = None
+    """The mask without what the foreground's growth added above the object (box-sized): the
+    outline the vehicle geometry reads."""
+    vehicle_height_m: float | None = None
+    """Third reading, for vehicles: the height of the box on the ground that fits the outline
+    (``stages.vehicle_geometry``; calibrated cameras only)."""
+    vehicle_noise_m: float | None = None
+    vehicle_bias_m: float | None = None
+    """The part of ``vehicle_noise_m`` that repeats on this object frame after frame."""
+    vehicle_axis_xy: tuple[float, float] | None = None
+    """Unit vector along that box's length on the ground: a vehicle drives along it."""
+    vehicle_length_assumed: bool = False
+    """Only the box's end was seen: its length is a car's by assumption (and a bicycle seen from
+    the side looks the same; the tracker tells them apart by the direction they move)."""
 
 
 @dataclass
@@ -112,7 +126,7 @@ class Track:
     ground_xy_m: tuple[float, float] | None = None
     """Ground position in metres (world x, y) where the camera is calibrated."""
     height_source: str = "network"
-    """'network', 'geometry' or 'fused'."""
+    """'network', 'geometry' (foot and top), 'box' (a vehicle's outline) or 'fused'."""
     hits: int = 0
     age: int = 0
     updated: bool = True

@@ -139,10 +139,15 @@ class MotionFilter:
         self.kf.P = snapshot.P.copy()
 
 
+# Channels whose bias prior comes with their first measurement (see ``HeightFilter._start_bias``).
+GEOMETRY_CHANNELS = ("geometry", "box")
+
+
 class HeightFilter:
     """Object height in metres: a constant with a tiny random walk, plus each channel's bias on it.
 
-    Measurements come through named channels ("network", "geometry"); several in one frame are
+    Measurements come through named channels ("network", "geometry" from a person's foot and
+    crown, "box" from a vehicle's outline); several in one frame are
     applied one after the other (sequential update of independent measurements), and the
     filter remembers which channels have contributed (``source``).
 
@@ -150,28 +155,28 @@ class HeightFilter:
     low in every frame (its colours, its pose, the scene behind it stay the same); the geometry
     takes the same hair for the crown and the same shoes for the soles, a pixel or two off in
     every frame. Averaging frames converges on the wrong number with a shrinking std. The state
-    therefore holds both biases beside the height, ``[H, b_n, b_g]``: a network height measures
-    ``H + b_n``, a geometry height ``H + b_g``. Each bias starts at 0 with its own prior std (the
-    network's ``bias_share`` of the height; the geometry's ``geometry_bias_factor`` times the
-    per-object part of its first measurement's noise, its pixels, which shrinks with the object's
-    size in pixels) and stays constant.
+    therefore holds each channel's bias beside the height, ``[H, b_n, b_g, b_box]``: a network
+    height measures ``H + b_n``, a geometry height ``H + b_g``. Each bias starts at 0 with its own
+    prior std (the network's ``bias_share`` of the height; a geometry's ``geometry_bias_factor``
+    times the per-object part of its first measurement's noise, its pixels, which shrinks with the
+    object's size in pixels) and stays constant.
     Frames then average only the white noise: the std never falls below what the biases allow,
     and where both channels measure, the height settles between them by their bias priors (the
     shipped network's 20 % against a few pixels: nearly the geometry), while a frame with only a
     network height (feet cut by the frame) is corrected by the learnt difference.
     """
 
-    CHANNEL_BIAS = {"network": 1, "geometry": 2}
+    CHANNEL_BIAS = {"network": 1, "geometry": 2, "box": 3}
     """State index of each channel's bias."""
 
     def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = "network",
                  bias_share: float = 0.0, geometry_bias_factor: float = 0.0, bias_std_m: float | None = None):
-        kf = KalmanFilter(dim_x=3, dim_z=1)
-        kf.x = np.array([[height_m], [0.0], [0.0]])
-        kf.P = np.diag([std_m ** 2, (bias_share * max(height_m, 0.0)) ** 2, 0.0])
-        kf.F = np.eye(3)
+        kf = KalmanFilter(dim_x=4, dim_z=1)
+        kf.x = np.array([[height_m], [0.0], [0.0], [0.0]])
+        kf.P = np.diag([std_m ** 2, (bias_share * max(height_m, 0.0)) ** 2, 0.0, 0.0])
+        kf.F = np.eye(4)
         # The biases are constants of the object; the height's own random walk lets readings drift.
-        kf.Q = np.diag([process_noise_m ** 2, 0.0, 0.0])
+        kf.Q = np.diag([process_noise_m ** 2, 0.0, 0.0, 0.0])
         self.kf = kf
         self.geometry_bias_factor = geometry_bias_factor
         self.updates: dict[str, int] = {}
@@ -185,16 +190,17 @@ class HeightFilter:
         self.updates[channel] = 1
 
     def _start_bias(self, channel: str, bias_std_m: float) -> None:
-        """A channel's first measurement sets its bias prior: the geometry's scales with the part of
-        its noise that repeats on this object (its pixels; not the camera height that every object
-        and the network's scale share)"""
-        if channel == "geometry" and not self.updates.get(channel):
-            self.kf.P[2, :] = self.kf.P[:, 2] = 0.0
-            self.kf.P[2, 2] = (self.geometry_bias_factor * bias_std_m) ** 2
+        """A geometry channel's first measurement sets its bias prior: it scales with the part of
+        its noise that repeats on this object (its pixels, a vehicle's shape; not the camera height
+        that every object and the network's scale share)"""
+        if channel in GEOMETRY_CHANNELS and not self.updates.get(channel):
+            bias = self.CHANNEL_BIAS[channel]
+            self.kf.P[bias, :] = self.kf.P[:, bias] = 0.0
+            self.kf.P[bias, bias] = (self.geometry_bias_factor * bias_std_m) ** 2
 
     @property
     def source(self) -> str:
-        """'network', 'geometry' or 'fused': which channels this height is made of."""
+        """'network', 'geometry', 'box' or 'fused': which channels this height is made of."""
         used = [name for name, count in self.updates.items() if count > 0]
         return used[0] if len(used) == 1 else "fused"
 
@@ -207,7 +213,7 @@ class HeightFilter:
         return float(np.sqrt(self.kf.P[0, 0]))
 
     def _row(self, channel: str) -> np.ndarray:
-        row = np.array([[1.0, 0.0, 0.0]])
+        row = np.array([[1.0, 0.0, 0.0, 0.0]])
         if channel in self.CHANNEL_BIAS:
             row[0, self.CHANNEL_BIAS[channel]] = 1.0
         return row
@@ -225,7 +231,7 @@ class HeightFilter:
         row = self._row(channel)
         expected = float((row @ self.kf.x)[0, 0])
         variance = self.expected_std_m(channel) ** 2 + std_m ** 2
-        if channel == "geometry" and not self.updates.get(channel):
+        if channel in GEOMETRY_CHANNELS and not self.updates.get(channel):
             variance += (self.geometry_bias_factor * std_m) ** 2
         return abs(height_m - expected) / float(np.sqrt(variance))
 

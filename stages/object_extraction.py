@@ -320,14 +320,16 @@ class ObjectExtractor:
                                                                                      work_edge)
                     ends = (None if moving is None
                             else foreground_ends(part, (x, y), changed, moving, GROW_RADIUS))
-                    detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond, ends)
+                    outline = None if changed is None else seen_outline(part, (x, y), changed)
+                    detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond, ends,
+                                                         outline)
                     if detection is not None:
                         detections.append(detection)
         return detections
 
     def _piece_to_detection(self, piece: np.ndarray, offset: tuple[int, int], height_map: np.ndarray | None,
                             scale: float, edge: np.ndarray, beyond: tuple[bool, bool],
-                            ends: tuple[int, int] | None = None) -> Detection | None:
+                            ends: tuple[int, int] | None, outline: np.ndarray | None) -> Detection | None:
         rows, cols = np.nonzero(piece)
         if rows.size == 0:
             return None
@@ -341,6 +343,10 @@ class ObjectExtractor:
         y1 = min(src_h, int(np.ceil((y + h) / scale)))
         mask = _resize_mask(piece, (x1 - x0, y1 - y0))
         detection = self._measure(mask, height_map, (x0, y0, x1, y1), edge[y0:y1, x0:x1] & mask, scale, beyond)
+        if detection is not None:
+            # Without a background model the part itself is the best outline there is.
+            detection.outline = mask if outline is None else _resize_mask(
+                outline[rows.min():rows.max() + 1, cols.min():cols.max() + 1], (x1 - x0, y1 - y0))
         if detection is not None and ends is not None:
             # Geometry points from the object's own foreground, not from the grown box (whose top
             # overshoots the head by the growth) nor the height map's cut (which ends above the feet).
@@ -466,6 +472,19 @@ def foreground_ends(part: np.ndarray, offset: tuple[int, int], changed: np.ndarr
         below = moving[bottom + 1:bottom + 1 + reach, cols].any(axis=1)
         bottom += int(below.size if below.all() else np.argmin(below))
     return top, bottom
+
+
+def seen_outline(part: np.ndarray, offset: tuple[int, int], changed: np.ndarray) -> np.ndarray:
+    """The part from each column's first row that the background model saw change, down.
+
+    The part's top overshoots the object by the foreground's growth wherever the height map is
+    blurred (as at the crown, see ``foreground_ends``); a vehicle's outline top is its far roof
+    edge, which the vehicle geometry reads column by column. Columns with no change keep the part.
+    """
+    x, y = offset
+    seen = part & changed[y:y + part.shape[0], x:x + part.shape[1]]
+    first = np.where(seen.any(axis=0), np.argmax(seen, axis=0), 0)
+    return part & (np.arange(part.shape[0])[:, None] >= first[None, :])
 
 
 def _runs_to_edge(moving: np.ndarray, edge: np.ndarray) -> bool:

@@ -22,11 +22,12 @@ One frame, in order:
    observation (OC-SORT's observation-centric re-update), so the velocity that drifted while
    it was hidden does not carry on.
 6. Height: the network's single-frame height and, where the camera is calibrated, the geometry
-   height are fused into the height filter (for walkers the network's heights go through the
-   upper quantile of a short window: stature, not the gait's mean dip nor a blob that lost its
-   feet or head for a frame); a network height below the geometry's lower bound (feet cut off)
-   is raised to it; outliers beyond ``height_gate_sigma`` are skipped, and a channel whose run
-   of rejections outweighs the state restarts it. The height state carries each channel's bias
+   height (a person's foot and crown; a vehicle track's box fitted to its outline, if the box
+   lies along the way it drives) are fused into the height filter (for walkers the network's
+   heights go through the upper quantile of a short window: stature, not the gait's mean dip
+   nor a blob that lost its feet or head for a frame); a network height below the geometry's
+   lower bound (feet cut off) is raised to it; outliers beyond ``height_gate_sigma`` are
+   skipped, and a channel whose run of rejections outweighs the state restarts it. The height state carries each channel's bias
    on this object beside the height (``HeightFilter``): where both measure, the height settles
    between them by their bias priors (with the shipped network: nearly the geometry), and its
    std never falls below what those biases allow.
@@ -84,8 +85,15 @@ COASTING_MAX_SIZE_RATIO = 2.0
 # Tracks seen within this many frames may claim their share of a merged blob (their prediction
 # is still good).
 MERGE_MAX_MISSES = 1
-# Classes whose geometry height only stands in when the network has none (see _update_height).
-GEOMETRY_ONLY_AS_FALLBACK = ("vehicle",)
+# A vehicle's heading: from its last this many ground points, once they span this far. A box
+# fitted to its outline must lie along it within this angle (a bicycle seen from the side fits an
+# end-on car's box lying across its way).
+HEADING_POINTS = 10
+HEADING_MIN_TRAVEL_M = 1.0
+HEADING_MAX_ANGLE_DEG = 30.0
+# Classes measured by the vehicle geometry (a box fitted to the outline, channel "box") instead of
+# foot and top; their foot/top height only stands in when nothing else measures them.
+BOX_GEOMETRY_CLASSES = ("vehicle",)
 
 
 @dataclass
@@ -104,6 +112,8 @@ class _TrackState:
     confirmed: bool = False
     class_votes: Counter = field(default_factory=Counter)
     ground_xy_m: tuple[float, float] | None = None
+    ground_path: deque = field(default_factory=lambda: deque(maxlen=HEADING_POINTS))
+    """The last few ground points of the object's foot, for its heading (see ``_box_agrees``)."""
     updated: bool = True
     last_observation: tuple[float, float, float, float] | None = None
     """Box of the last associated detection, in the current frame's coordinates."""
@@ -112,7 +122,7 @@ class _TrackState:
     last_region: Region | None = None
     """Where the object was in the previous frame, for matched-point votes."""
     height_geometry_trusted: bool = True
-    """Whether the class at the last height update let the geometry in (see ``_update_height``)."""
+    """Whether the class at the last height update let the foot/top geometry in (see ``_update_height``)."""
     height_rejections: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     """Per channel: (height, noise) of the measurements the height gate rejected in a row."""
 
@@ -349,6 +359,7 @@ class ObjectTracker:
         track.class_votes[detection.cls] += 1
         if detection.ground_xy_m is not None:
             track.ground_xy_m = detection.ground_xy_m
+            track.ground_path.append(detection.ground_xy_m)
         self._update_height(track, detection, _top_lost(predicted_box, detection.box))
         if track.hit_streak >= self.required_hits:
             track.confirmed = True
@@ -368,34 +379,38 @@ class ObjectTracker:
     def _update_height(self, track: _TrackState, detection: Detection, top_lost: bool) -> None:
         """Fold in the network height, then the geometry height (sequential update)."""
         channels = []
-        geometry_trusted = track.cls not in GEOMETRY_ONLY_AS_FALLBACK
-        if (not geometry_trusted and track.height_geometry_trusted and track.height is not None
+        boxed = track.cls in BOX_GEOMETRY_CLASSES
+        if (boxed and track.height_geometry_trusted and track.height is not None
                 and track.height.updates.get("geometry", 0) > 0):
-            # Geometry went in while the track passed for a person or cyclist; as a vehicle its
-            # geometry height is the far roof edge's: start again from this frame's measurements.
+            # Foot/top geometry went in while the track passed for a person or cyclist; as a vehicle
+            # its foot/top height is the far roof edge's: start again from this frame's measurements.
             track.height = None
             track.height_rejections.clear()
-        track.height_geometry_trusted = geometry_trusted
+        track.height_geometry_trusted = not boxed
         if _usable(detection.height_m, detection.height_noise_m):
             height, noise = detection.height_m, detection.height_noise_m
-            if geometry_trusted and detection.geometry_min_height_m is not None:
+            if not boxed and detection.geometry_min_height_m is not None:
                 height = max(height, detection.geometry_min_height_m)   # the foot is cut: a bound
             if top_lost:
                 noise *= TOP_LOST_NOISE_FACTOR
             if self.config.stature_window > 0 and track.cls in WALKER_CLASSES:
                 height = track.stature.add(height, noise)
             channels.append(("network", height, noise, None))
-        # Geometry assumes the top lies above the foot. For vehicles the blob's top is the far
-        # roof edge, metres behind the foot, and on generator data their geometry heights came out
-        # ~0.8 m high (median): used for them only when the network gives no height at all.
-        use_geometry = geometry_trusted or not channels
-        if use_geometry and _usable(detection.geometry_height_m, detection.geometry_noise_m):
-            height = detection.geometry_height_m
-            noise = detection.geometry_noise_m * (TOP_LOST_NOISE_FACTOR if top_lost else 1.0)
+        geometry = None
+        if boxed and _usable(detection.vehicle_height_m, detection.vehicle_noise_m) and _box_agrees(track, detection):
+            geometry = ("box", detection.vehicle_height_m, detection.vehicle_noise_m, detection.vehicle_bias_m)
+        elif (not boxed or not channels) and _usable(detection.geometry_height_m, detection.geometry_noise_m):
+            # A vehicle's foot/top height is its far roof edge's, metres behind the foot (generator
+            # data: ~0.8 m high): it stands in only when nothing else measures the vehicle.
+            geometry = ("geometry", detection.geometry_height_m, detection.geometry_noise_m,
+                        detection.geometry_bias_m)
+        if geometry is not None:
+            channel, height, noise, bias_std = geometry
+            noise *= TOP_LOST_NOISE_FACTOR if top_lost else 1.0
             # No stature window here: box points wobble ~20 px (Oxford, against labels) under a
             # stated 2 px, so a window's upper quantile picks the boxes that overshoot, not the
             # top of the gait (Oxford: mean 1.81 -> 1.80 m, median error 4.5 -> 3.8 cm without).
-            channels.append(("geometry", height, noise, detection.geometry_bias_m))
+            channels.append((channel, height, noise, bias_std))
         for channel, height, noise, bias_std in channels:
             if track.height is None:
                 track.height = self.filters.create_height_filter(height, noise, channel, bias_std)
@@ -467,6 +482,22 @@ def _left_the_view(track: _TrackState, frame_size: tuple[int, int] | None) -> bo
     inside_w = max(0.0, min(x + w, frame_size[0]) - max(x, 0.0))
     inside_h = max(0.0, min(y + h, frame_size[1]) - max(y, 0.0))
     return inside_w * inside_h / (w * h) < MIN_SHARE_IN_VIEW
+
+
+def _box_agrees(track: _TrackState, detection: Detection) -> bool:
+    """Whether the box fitted to the outline lies along the way the track moves.
+
+    A box whose length was seen stands unless the heading says otherwise; one whose length was
+    assumed (only an end seen) needs the heading to confirm it.
+    """
+    axis = detection.vehicle_axis_xy
+    if axis is None or len(track.ground_path) < 2:
+        return not detection.vehicle_length_assumed
+    travel = np.subtract(track.ground_path[-1], track.ground_path[0])
+    distance = float(np.hypot(*travel))
+    if distance < HEADING_MIN_TRAVEL_M:
+        return not detection.vehicle_length_assumed
+    return abs(float(np.dot(travel, axis))) / distance >= np.cos(np.deg2rad(HEADING_MAX_ANGLE_DEG))
 
 
 def _top_lost(predicted_box, box) -> bool:

@@ -10,7 +10,8 @@ import pytest
 from pipeline.config import GroundConfig, TrackingConfig
 from pipeline.errors import ConfigError
 from pipeline.packets import CameraInfo, Frame, FramePacket
-from stages.object_extraction import ObjectExtractor, coarse_class, foreground_ends, moving_beyond_ends
+from stages.object_extraction import (ObjectExtractor, coarse_class, foreground_ends, moving_beyond_ends,
+                                      seen_outline)
 
 WIDTH, HEIGHT = 640, 360
 
@@ -119,6 +120,19 @@ def test_moving_beyond_ends_needs_an_unbroken_run_to_the_edge():
     assert moving_beyond_ends(part, (10, 20), grown, edge) == (False, False)
     grown[40:60, 10:20] = True                       # moving all the way down
     assert moving_beyond_ends(part, (10, 20), grown, edge) == (False, True)
+
+
+def test_a_vehicles_outline_starts_where_each_column_was_seen_to_change():
+    changed = np.zeros((30, 40), bool)
+    changed[10:25, 5:35] = True                 # a car's body, rows 10-24 ...
+    changed[6:10, 12:25] = True                 # ... its cabin above, rows 6-9
+    part = np.zeros((24, 40), bool)             # offset (0, 3): grown by 3 rows above both
+    part[0:22, 2:38] = True
+    outline = seen_outline(part, (0, 3), changed)
+    assert outline[:, 15].argmax() == 6 - 3 and outline[:, 30].argmax() == 10 - 3
+    # A column the background model never saw change keeps the part's own extent.
+    assert outline[:, 3].argmax() == 0 and outline[:, 3].sum() == 22
+    assert not (outline & ~part).any()
 
 
 def test_foreground_ends_are_the_crown_and_the_soles_not_the_grown_box():

@@ -381,6 +381,47 @@ def test_a_track_that_turns_out_a_vehicle_drops_the_geometry_it_took_as_a_cyclis
     assert tracks[0].height_m == pytest.approx(1.50, abs=0.1)
 
 
+def test_a_vehicle_track_is_measured_by_its_box_not_by_foot_and_top():
+    """A van read 1.3 m by a network that reads big objects low, 3.0 m by foot and top (the far
+    roof edge) and 2.2 m by the box fitted to its outline. The foot/top height stays out; the
+    height settles between network and box by their per-object bias priors (the network's 20 %
+    of 1.3 m against the box's 0.2 m): nearer the box."""
+    tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
+    for frame in range(30):
+        detection = _detection(10 + 2 * frame, 10, 1.30, w=80, h=50, noise_m=0.5, cls="vehicle")
+        detection.geometry_height_m, detection.geometry_noise_m, detection.geometry_bias_m = 3.0, 0.1, 0.05
+        detection.vehicle_height_m, detection.vehicle_noise_m, detection.vehicle_bias_m = 2.2, 0.3, 0.2
+        tracks = tracker.update([detection])
+    assert tracks[0].cls == "vehicle"
+    assert tracks[0].height_source == "fused"
+    assert 1.75 < tracks[0].height_m < 2.2
+    # Its std is what the two biases leave, not the frames' averaged-away noise.
+    assert 0.1 < tracks[0].height_std_m < 0.3
+
+
+@pytest.mark.parametrize("axis, used", [((0.0, 1.0), True), ((1.0, 0.0), False)])
+def test_a_box_whose_length_was_assumed_must_lie_along_the_tracks_way(axis, used):
+    """Only an end seen: a car coming towards the camera, or a bicycle crossing its view side-on."""
+    tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
+    for frame in range(20):
+        detection = _detection(100, 10 + 3 * frame, 1.0, w=60, h=50, noise_m=0.5, cls="vehicle")
+        detection.ground_xy_m = (0.0, 10.0 + 0.5 * frame)               # it moves along y
+        detection.vehicle_height_m, detection.vehicle_noise_m, detection.vehicle_bias_m = 1.5, 0.4, 0.35
+        detection.vehicle_axis_xy, detection.vehicle_length_assumed = axis, True
+        tracks = tracker.update([detection])
+    assert (tracks[0].height_source == "fused") == used
+
+
+def test_a_box_reading_does_not_measure_a_walker():
+    tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
+    for frame in range(20):
+        detection = _detection(10 + 2 * frame, 10, 1.75, noise_m=0.1)
+        detection.vehicle_height_m, detection.vehicle_noise_m, detection.vehicle_bias_m = 1.0, 0.3, 0.2
+        tracks = tracker.update([detection])
+    assert tracks[0].height_source == "network"
+    assert tracks[0].height_m == pytest.approx(1.75, abs=0.02)
+
+
 def test_matched_points_vote_for_the_blob_that_continues_a_track():
     """Two candidate blobs overlap the prediction equally; the matched points decide."""
     tracker = ObjectTracker(TrackingConfig(min_hits=1))
