@@ -9,7 +9,7 @@ from collections import defaultdict
 from pipeline.runner import RunSummary
 
 CAMERA_SOURCES = {
-    "calibration": "calibrated (calibration file)",
+    "calibration": "calibrated (full pose: a calibration file, or camera height and pitch)",
     "camera-height": "camera height given, no full calibration",
     "self": "self-calibrated from walking people: heights carry its uncertainty",
     "none": "UNCALIBRATED: no camera height or calibration given, an assumed height is used, "
