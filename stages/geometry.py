@@ -7,6 +7,11 @@ network's height, so its noise must be honest: pixel noise of the two points pro
 the geometry, the camera-height uncertainty of a self-calibrated camera, and for long objects
 the error of assuming the top is above the foot.
 
+Objects as wide as a vehicle also get a third reading, the height of a box on the ground fitted
+to their outline (:mod:`stages.vehicle_geometry`): a vehicle's outline top is its roof's far
+edge, metres behind its foot, where foot and top read it ~1 m high. The tracker takes it for
+vehicle tracks instead of foot and top.
+
 An object whose foot is cut off (by the frame's edge, or hidden) still gets a lower bound: its
 true foot lies lower in the image, nearer the camera, where the top's ray stands higher. The
 tracker raises a network height below it (Oxford: a walker leaving at the bottom corner read
