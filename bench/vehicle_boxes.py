@@ -62,30 +62,16 @@ def main(argv: list[str] | None = None) -> int:
 
 def _vehicles(sequence, every: int):
     """(class, true height, box height on the true mask, matched detection or None, rgb, camera)."""
-    import cv2
-
     from pipeline.config import load_config
-    from pipeline.eval_tracks import build_eval_stages, camera_info, matched_at_iou
-    from pipeline.packets import Frame, FramePacket
-    from pipeline.runner import prime_background
-    from stages.capture import background_indices
+    from pipeline.eval_tracks import build_eval_stages, matched_at_iou, prime_sequence_background, sequence_packets
     from stages.vehicle_geometry import vehicle_box
 
     config = load_config(None)
-    stages = [stage for name, stage in build_eval_stages(sequence, config, "model", geometry=True)
+    stages = [(name, stage) for name, stage in build_eval_stages(sequence, config, "model", geometry=True)
               if name != "tracking"]
-    meta = sequence.meta
-    prime_background(stages, [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
-                              for i in background_indices(len(sequence), meta.fps,
-                                                          config.tracking.background_prime_frames,
-                                                          config.tracking.background_prime_s)])
-    camera = camera_info(sequence)
-    for index in range(len(sequence)):
-        truth_frame = sequence.frame(index)
-        packet = FramePacket(frame=Frame(index, truth_frame.time_s, cv2.cvtColor(truth_frame.rgb, cv2.COLOR_RGB2BGR)),
-                             camera=camera)
-        for stage in stages:
-            packet = stage.process(packet)
+    prime_sequence_background(sequence, stages, config)
+    for truth_frame, packet in sequence_packets(sequence, stages):
+        index = packet.frame.index
         if index % every:
             continue
         height, width = truth_frame.instance.shape
@@ -105,10 +91,10 @@ def _vehicles(sequence, every: int):
         matched = dict(matched_at_iou([o.box for o, _, _ in whole], [d.box for d in detections])) if detections else {}
         for i, (o, rows, cols) in enumerate(whole):
             mask = (truth_frame.instance == o.id)[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
-            fitted = vehicle_box(camera, mask, (float(cols.min()), float(rows.min())))
+            fitted = vehicle_box(packet.camera, mask, (float(cols.min()), float(rows.min())))
             detection = detections[matched[i]] if i in matched else None
             yield (o.cls, float(o.height_m), fitted.height_m if fitted else np.nan, detection,
-                   truth_frame.rgb, camera)
+                   truth_frame.rgb, packet.camera)
 
 
 def format_table(readings: dict[str, list[tuple[float, float, float, float]]]) -> str:

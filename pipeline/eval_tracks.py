@@ -207,26 +207,31 @@ def build_eval_stages(sequence, config: Config, heights: str, geometry: bool) ->
     return stages
 
 
-def run_sequence(sequence, config: Config, heights: str = "model", geometry: bool = True,
-                 max_frames: int = 0, record: Path | None = None) -> SequenceRun:
-    """Runs the tracking pipeline over one generator sequence and keeps what evaluation needs."""
+def prime_sequence_background(sequence, stages: list[tuple[str, object]], config: Config) -> None:
+    """Seeds the object extractor's background model as ``heightpipe run`` does for files."""
     import cv2
 
-    from pipeline.packets import Frame, FramePacket
     from pipeline.runner import prime_background
     from stages.capture import background_indices
 
-    meta = sequence.meta
-    run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
-    camera = camera_info(sequence)
-    stages = build_eval_stages(sequence, config, heights, geometry)
-    count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
     sample = [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
-              for i in background_indices(len(sequence), meta.fps, config.tracking.background_prime_frames,
+              for i in background_indices(len(sequence), sequence.meta.fps,
+                                          config.tracking.background_prime_frames,
                                           config.tracking.background_prime_s)]
     prime_background([stage for _, stage in stages], sample)
-    sink = _open_recording(record, config, sequence.name) if record else None
-    start = time.perf_counter()
+
+
+def sequence_packets(sequence, stages: list[tuple[str, object]], max_frames: int = 0):
+    """Each frame of a generator sequence through ``stages``: yields (truth frame, packet).
+
+    The stages are closed when the frames run out or the caller closes the generator.
+    """
+    import cv2
+
+    from pipeline.packets import Frame, FramePacket
+
+    camera = camera_info(sequence)
+    count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
     try:
         for index in range(count):
             truth_frame = sequence.frame(index)
@@ -234,25 +239,41 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
             packet = FramePacket(frame=Frame(index, truth_frame.time_s, image), camera=camera)
             for _, stage in stages:
                 packet = stage.process(packet)
-            if sink is not None:
-                sink.write(packet)
-            run.frames.append(FrameRecord(
-                truth=[TruthBox(o.id, COARSE_CLASS.get(o.cls, "other"), tuple(map(float, o.box)),
-                                float(o.visible_fraction), float(o.height_m))
-                       for o in sequence.objects(index)],
-                tracks=[OutputBox(t.track_id, tuple(map(float, t.box)), t.height_m, t.height_std_m,
-                                  t.cls, t.height_source, t.updated)
-                        for t in packet.tracks if t.confirmed],
-                detections=[DetectionBox(tuple(map(float, d.box)), d.height_m) for d in packet.detections],
-            ))
+            yield truth_frame, packet
     finally:
-        if sink is not None:
-            sink.close()
         for _, stage in stages:
             close = getattr(stage, "close", None)
             if close is not None:
                 close()
-    run.fps = count / max(time.perf_counter() - start, 1e-9)
+
+
+def run_sequence(sequence, config: Config, heights: str = "model", geometry: bool = True,
+                 max_frames: int = 0, record: Path | None = None) -> SequenceRun:
+    """Runs the tracking pipeline over one generator sequence and keeps what evaluation needs."""
+    meta = sequence.meta
+    run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
+    stages = build_eval_stages(sequence, config, heights, geometry)
+    prime_sequence_background(sequence, stages, config)
+    sink = _open_recording(record, config, sequence.name) if record else None
+    start = time.perf_counter()
+    try:
+        with contextlib.closing(sequence_packets(sequence, stages, max_frames)) as packets:
+            for _, packet in packets:
+                if sink is not None:
+                    sink.write(packet)
+                run.frames.append(FrameRecord(
+                    truth=[TruthBox(o.id, COARSE_CLASS.get(o.cls, "other"), tuple(map(float, o.box)),
+                                    float(o.visible_fraction), float(o.height_m))
+                           for o in sequence.objects(packet.frame.index)],
+                    tracks=[OutputBox(t.track_id, tuple(map(float, t.box)), t.height_m, t.height_std_m,
+                                      t.cls, t.height_source, t.updated)
+                            for t in packet.tracks if t.confirmed],
+                    detections=[DetectionBox(tuple(map(float, d.box)), d.height_m) for d in packet.detections],
+                ))
+    finally:
+        if sink is not None:
+            sink.close()
+    run.fps = len(run.frames) / max(time.perf_counter() - start, 1e-9)
     return run
 
 

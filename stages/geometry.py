@@ -149,8 +149,8 @@ class GeometryMeasurer:
             return
         pixel = fitted.pixel_noise_m
         scale_error = fitted.height_m * self.camera_height_std_m / camera.height_m
-        shape = np.hypot(VEHICLE_SHAPE_NOISE_M, VEHICLE_END_ON_NOISE_M if fitted.length_assumed else 0.0)
-        shape_bias = np.hypot(VEHICLE_SHAPE_BIAS_M, VEHICLE_END_ON_NOISE_M if fitted.length_assumed else 0.0)
+        end_on = VEHICLE_END_ON_NOISE_M if fitted.length_assumed else 0.0
+        shape, shape_bias = np.hypot(VEHICLE_SHAPE_NOISE_M, end_on), np.hypot(VEHICLE_SHAPE_BIAS_M, end_on)
         detection.vehicle_height_m = fitted.height_m
         detection.vehicle_noise_m = float(np.sqrt(pixel ** 2 + shape ** 2 + scale_error ** 2))
         detection.vehicle_bias_m = float(np.hypot(pixel, shape_bias))

@@ -9,7 +9,8 @@ Two independent filters per track:
   applied to this state (``warp``), never to the height.
 * ``HeightFilter``: the object's height in metres, a random walk with near-zero process noise
   (objects do not grow), so every frame is one more measurement of the same number; beside it,
-  each channel's (network, geometry) bias on this object, which frames do not average away.
+  each channel's (network, foot/top geometry, vehicle box) bias on this object, which frames
+  do not average away.
   A second measurement channel (geometry) is just a second ``update`` in the same frame
   (sequential update: independent measurements may be applied one after the other).
 

@@ -27,10 +27,10 @@ One frame, in order:
    heights go through the upper quantile of a short window: stature, not the gait's mean dip
    nor a blob that lost its feet or head for a frame); a network height below the geometry's
    lower bound (feet cut off) is raised to it; outliers beyond ``height_gate_sigma`` are
-   skipped, and a channel whose run of rejections outweighs the state restarts it. The height state carries each channel's bias
-   on this object beside the height (``HeightFilter``): where both measure, the height settles
-   between them by their bias priors (with the shipped network: nearly the geometry), and its
-   std never falls below what those biases allow.
+   skipped, and a channel whose run of rejections outweighs the state restarts it. The height
+   state carries each channel's bias on this object beside the height (``HeightFilter``): where
+   two measure, the height settles between them by their bias priors (with the shipped network:
+   nearly the geometry), and its std never falls below what those biases allow.
 7. Tracks are confirmed after ``min_hits`` hits in a row (and ``confirm_s`` seconds of them)
    and dropped after ``max_misses`` frames without a hit (and ``max_miss_s`` seconds): durations,
    so that a 25 fps camera and a 10 fps one behave alike. A tentative track is dropped at its
@@ -256,7 +256,7 @@ class ObjectTracker:
         box_heights = np.array([b[3] for b in boxes], dtype=float)
         for row, track in enumerate(self.tracks):
             if track.misses > 0:
-                allowed[row] &= _alike_in_size(track.motion.box[3], box_heights, COASTING_MAX_SIZE_RATIO) > 0
+                allowed[row] &= _alike_in_size(track.motion.box[3], box_heights, COASTING_MAX_SIZE_RATIO)
         cost = ((1.0 - iou) + self.config.vote_weight * (1.0 - votes)
                 + MOTION_WEIGHT * np.minimum(distance / gate, 1.0) + HEIGHT_WEIGHT * np.minimum(height_gap, 1.0)
                 + DIRECTION_WEIGHT * self._direction_mismatch(range(n_tracks), boxes))
@@ -305,8 +305,9 @@ class ObjectTracker:
         boxes = [detections[c].box for c in detection_cols]
         box_heights = np.array([b[3] for b in boxes], dtype=float)
         iou = iou_matrix([self.tracks[r].last_observation for r in candidates], boxes)
-        iou *= np.array([_alike_in_size(self.tracks[r].motion.box[3], box_heights, COASTING_MAX_SIZE_RATIO)
-                         for r in candidates])
+        same_size = np.array([_alike_in_size(self.tracks[r].motion.box[3], box_heights, COASTING_MAX_SIZE_RATIO)
+                              for r in candidates])
+        iou = np.where(same_size, iou, 0.0)
         # Or where the prediction went, with a buffer that grows while the object stays hidden
         # (C-BIoU): a walker's speed estimate is a few per cent off, and over a 2 s occlusion
         # that put the prediction most of a box width away from where the walker came out.
@@ -317,7 +318,7 @@ class ObjectTracker:
             if buffer > 0:
                 buffered = iou_matrix([_buffered(track.motion.box, buffer)], [_buffered(b, buffer) for b in boxes])[0]
                 alike = _alike_in_size(track.motion.box[3], box_heights, RECOVERY_MAX_SIZE_RATIO)
-                iou[i] = np.maximum(iou[i], buffered * alike)
+                iou[i] = np.maximum(iou[i], np.where(alike, buffered, 0.0))
         gaps = self._height_gaps([detections[c] for c in detection_cols])[candidates]
         allowed = (iou >= self.config.iou_gate) & (gaps <= 1.0)
         cost = (1.0 - iou + HEIGHT_WEIGHT * np.minimum(gaps, 1.0)
@@ -506,9 +507,9 @@ def _top_lost(predicted_box, box) -> bool:
 
 
 def _alike_in_size(height_px: float, heights_px: np.ndarray, max_ratio: float) -> np.ndarray:
-    """1.0 where a box stands within ``max_ratio`` of ``height_px`` tall (either way), else 0.0."""
+    """Where a box stands within ``max_ratio`` of ``height_px`` tall (either way): a bool mask."""
     ratio = heights_px / max(height_px, 1e-9)
-    return ((ratio >= 1 / max_ratio) & (ratio <= max_ratio)).astype(float)
+    return (ratio >= 1 / max_ratio) & (ratio <= max_ratio)
 
 
 def _buffered(box, scale: float) -> tuple[float, float, float, float]:
