@@ -352,6 +352,8 @@ class ObjectExtractor:
             # overshoots the head by the growth) nor the height map's cut (which ends above the feet).
             detection.top_xy = (detection.top_xy[0], float(np.floor(ends[0] / scale)))
             detection.foot_xy = (detection.foot_xy[0], float(min(src_h, np.ceil((ends[1] + 1) / scale))))
+            if detection.cls != "vehicle":
+                fit_box_to_ends(detection)
         return detection
 
     def _add_consistency_noise(self, detections: list[Detection], packet: FramePacket) -> None:
@@ -472,6 +474,34 @@ def foreground_ends(part: np.ndarray, offset: tuple[int, int], changed: np.ndarr
         below = moving[bottom + 1:bottom + 1 + reach, cols].any(axis=1)
         bottom += int(below.size if below.all() else np.argmin(below))
     return top, bottom
+
+
+def fit_box_to_ends(detection: Detection) -> None:
+    """The detection's box (with its mask and outline) from its crown row down to its soles.
+
+    The box is the grown foreground cut to the height map: its top overshoots the crown by the
+    growth and its bottom ends where the height map drops under the ground threshold, above the
+    soles (trk_val20, people: box top 1.3 px high, bottom 1.6 px short of the truth, median IoU
+    0.65). Tracking scores and the track's box should be the object's, so the box takes the
+    geometry's ends: rows above the crown are cropped, rows down to the soles added (empty).
+    """
+    x, y, w, h = detection.box
+    top, bottom = int(round(detection.top_xy[1])), int(round(detection.foot_xy[1]))
+    top = min(max(top, int(y)), int(y + h) - 1)
+    bottom = max(bottom, top + 1)
+    if top == int(y) and bottom == int(y + h):
+        return
+
+    def reframed(mask: np.ndarray | None) -> np.ndarray | None:
+        if mask is None:
+            return None
+        out = np.zeros((bottom - top, mask.shape[1]), dtype=bool)
+        keep = mask[top - int(y):bottom - int(y)]
+        out[:keep.shape[0]] = keep
+        return out
+
+    detection.mask, detection.outline = reframed(detection.mask), reframed(detection.outline)
+    detection.box = (x, float(top), w, float(bottom - top))
 
 
 def seen_outline(part: np.ndarray, offset: tuple[int, int], changed: np.ndarray) -> np.ndarray:

@@ -70,8 +70,8 @@ def test_moving_person_becomes_one_detection_with_its_height():
     assert detection.height_m == pytest.approx(1.75, abs=0.06)
     assert detection.cls == "person"
     # Geometry points are the walker's own ends: the soles (whose heights are under the ground
-    # threshold, so the box stops 2 px short) and the crown.
-    assert y + h < 150 + 120
+    # threshold, so the height map's cut stops 2 px short) and the crown; the box reaches them too.
+    assert (y, y + h) == (150, 150 + 120)
     assert detection.foot_xy == pytest.approx((x + w / 2, 150 + 120))
     assert detection.top_xy == pytest.approx((x + w / 2, 150))
     assert not detection.touches_border
