@@ -487,6 +487,10 @@ def fit_box_to_ends(detection: Detection) -> None:
     """
     x, y, w, h = detection.box
     top, bottom = int(round(detection.top_xy[1])), int(round(detection.foot_xy[1]))
+    # A top that the frame cuts is not the crown: the box keeps the frame's edge (Oxford: a walker
+    # leaving at the top, cropped to where it changed, was taken over by a 0.86 m fragment).
+    if detection.top_cut:
+        top = int(y)
     top = min(max(top, int(y)), int(y + h) - 1)
     bottom = max(bottom, top + 1)
     if top == int(y) and bottom == int(y + h):
