@@ -110,7 +110,7 @@ class TrackingConfig:
     """Per-frame random walk of the height state: near zero, objects do not grow."""
     height_measurement_noise_m: float = 0.15
     """Base standard deviation of one frame's height measurement."""
-    network_bias_share: float = 0.2
+    network_bias_share: float = 0.3
     """Std of the network's bias on one object, as a share of its height (constant over frames)."""
     geometry_bias_factor: float = 1.0
     """Std of the geometry's bias on one object, in units of its first measurement's pixel noise
