@@ -672,9 +672,24 @@ def format_misses(breakdown: dict[str, dict]) -> str:
 # Report
 # --------------------------------------------------------------------------------------------
 
+def sequence_groups(runs: list[SequenceRun]) -> dict[str, list[int]]:
+    """Indices of the runs in each group a sequence belongs to whole: camera height, weather, time of day.
+
+    Tracking is scored per group too, because it is lost unevenly (rain at night, a high
+    camera's small people) and the overall number hides where.
+    """
+    groups: dict[str, list[int]] = defaultdict(list)
+    for index, run in enumerate(runs):
+        for group in (f"camera at {run.camera_height_m:.1f} m", f"weather {run.weather}", run.time_of_day):
+            groups[group].append(index)
+    return dict(sorted(groups.items()))
+
+
 def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: int = 10,
              use_trackeval: bool | None = None, min_box_px: float = 0.0) -> dict:
     datas = [mot_data(run, min_visibility, min_box_px) for run in runs]
+    mot_by_group = {group: dict(mot_metrics([datas[i] for i in indices], use_trackeval), sequences=len(indices))
+                    for group, indices in sequence_groups(runs).items()}
     objects = [o for run in runs for o in object_heights(run, min_visibility, min_box_px)]
     events = [e for run in runs for e in occlusion_events(run, min_visibility, min_hidden_frames=5,
                                                           min_box_px=min_box_px)]
@@ -689,6 +704,7 @@ def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: i
         "sequences": [r.name for r in runs],
         "frames": sum(len(r.frames) for r in runs),
         "mot": mot_metrics(datas, use_trackeval),
+        "mot_by_group": mot_by_group,
         "height_all": height_summary(objects, min_frames),
         "height_by_class": by_class,
         "height_by_camera_height": by_camera,
@@ -720,6 +736,11 @@ def format_report(report: dict) -> str:
         return (f"    {label:<38} {_cm(summary['tracked_median_error_m'])}   "
                 f"{_cm(summary['single_frame_median_error_m'])}      {summary['objects']:4d}")
 
+    by_group = report.get("mot_by_group", {})
+    if len(report["sequences"]) > 1:
+        lines.insert(2, "  tracking by group                           HOTA    IDF1  sequences")
+        lines[3:3] = [f"    {group:<38} {mot['HOTA']:.3f}   {mot['IDF1']:.3f}     {mot['sequences']:4d}"
+                      for group, mot in by_group.items()]
     lines.append(row("all", report["height_all"]))
     for cls, summary in report["height_by_class"].items():
         lines.append(row(f"class {cls}", summary))

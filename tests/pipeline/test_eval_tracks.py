@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.eval_tracks import (DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox,
-                                  _trackeval_metrics, evaluate, miss_breakdown, mot_data, mot_metrics,
+                                  _trackeval_metrics, evaluate, format_report, miss_breakdown, mot_data, mot_metrics,
                                   objects_followed, occlusion_events, plot_height_series)
 
 
@@ -86,6 +86,20 @@ def test_height_errors_tracked_vs_single_frame_and_occlusion():
     assert report["occlusions"] == occlusion_events(_run(frames), 0.3, 5)
     (event,) = report["occlusions"]
     assert event["kept_id"] and event["hidden_frames"] == 10
+
+
+def test_tracking_is_scored_per_camera_height_weather_and_time_of_day():
+    tracked = [FrameRecord([_truth(1, 10 + 3 * i)], [_out(7, 10 + 3 * i)], []) for i in range(20)]
+    missed = [FrameRecord([_truth(1, 10 + 3 * i)], [], []) for i in range(20)]
+    runs = [_run(tracked, "dry"), SequenceRun("wet", 5.0, "rain", "night", 10.0, missed)]
+    report = evaluate(runs, use_trackeval=False)
+    groups = report["mot_by_group"]
+    assert set(groups) == {"camera at 5.0 m", "weather clear", "weather rain", "day", "night"}
+    assert groups["weather clear"]["HOTA"] == pytest.approx(1.0) and groups["day"]["sequences"] == 1
+    assert groups["weather rain"]["HOTA"] == pytest.approx(0.0) and groups["night"]["IDF1"] == 0.0
+    assert groups["camera at 5.0 m"]["HOTA"] == pytest.approx(report["mot"]["HOTA"])
+    assert groups["camera at 5.0 m"]["sequences"] == 2
+    assert "weather rain                           0.000" in format_report(report)
 
 
 def test_an_occlusion_re_found_late_by_a_new_track_counts_as_lost():
