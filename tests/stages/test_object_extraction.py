@@ -473,3 +473,30 @@ def test_the_foreground_does_not_depend_on_what_ran_before_in_the_process():
     first = noisy_run(_walk(12))
     noisy_run(_walk(12, start_x=300, speed=-5))            # something else in between
     assert np.array_equal(first, noisy_run(_walk(12)))
+
+
+def test_a_noisy_night_camera_is_denoised_and_its_walker_stays_one_detection():
+    """Sensor noise of 8 grey levels speckles the foreground; a median filter is switched on for it."""
+    clean = _background()
+    noise = np.random.default_rng(3)
+
+    def noisy(image):
+        return np.clip(image + noise.normal(0, 8, image.shape), 0, 255).astype(np.uint8)
+
+    assert not ObjectExtractor._noisy([clean])
+    assert ObjectExtractor._noisy([noisy(clean), noisy(clean)])
+    config = TrackingConfig(work_width=0)
+    extractor = ObjectExtractor(config, GroundConfig())
+    extractor.prime_background([noisy(clean) for _ in range(5)])
+    assert extractor._denoise
+    for index, people in enumerate(_walk(10)[5:]):
+        image, heights, ground = _scene(index, people, rng=np.random.default_rng(index))
+        packet = extractor.process(_packet(index, noisy(image), heights, ground))
+    assert len(packet.detections) == 1
+    assert packet.detections[0].height_m == pytest.approx(1.75, abs=0.06)
+    # The foreground is the walker (40 x 120 px) and little else: unfiltered, noise adds half as much again.
+    assert packet.foreground.mean() < 1.2 * (40 * 120) / (WIDTH * HEIGHT)
+    # A clean camera is left alone.
+    calm = ObjectExtractor(config, GroundConfig())
+    calm.prime_background([clean] * 5)
+    assert calm._denoise is False
