@@ -494,9 +494,12 @@ def test_a_noisy_night_camera_is_denoised_and_its_walker_stays_one_detection():
         packet = extractor.process(_packet(index, noisy(image), heights, ground))
     assert len(packet.detections) == 1
     assert packet.detections[0].height_m == pytest.approx(1.75, abs=0.06)
+    # The crown and the soles come from a second, unfiltered background model (the filter shaves them).
+    assert extractor._ends_subtractor is not None
+    assert (packet.detections[0].top_xy[1], packet.detections[0].foot_xy[1]) == (150, 270)
     # The foreground is the walker (40 x 120 px) and little else: unfiltered, noise adds half as much again.
     assert packet.foreground.mean() < 1.2 * (40 * 120) / (WIDTH * HEIGHT)
     # A clean camera is left alone.
     calm = ObjectExtractor(config, GroundConfig())
     calm.prime_background([clean] * 5)
-    assert calm._denoise is False
+    assert calm._denoise is False and calm._ends_subtractor is None
