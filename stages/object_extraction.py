@@ -396,8 +396,8 @@ class ObjectExtractor:
             # overshoots the head by the growth) nor the height map's cut (which ends above the feet).
             detection.top_xy = (detection.top_xy[0], float(np.floor(ends[0] / scale)))
             detection.foot_xy = (detection.foot_xy[0], float(min(src_h, np.ceil((ends[1] + 1) / scale))))
-            # Not a vehicle's: its outline top is the roof's far edge, which the box geometry reads
-            # from the outline (trk_val20 with vehicles' boxes fitted too: their heights 25.4 -> 30.0 cm).
+            # Not a vehicle's: fitted too, vehicles' tracked heights on trk_val20 went 25.4 -> 30.0 cm
+            # (not understood; their outline top is the roof's far edge, not a crown).
             if detection.cls != "vehicle":
                 fit_box_to_ends(detection)
         return detection
