@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 from pathlib import Path
 
 import cv2
@@ -118,3 +119,11 @@ def rrd_rows(path: Path, extra_columns: tuple[str, ...] = ()) -> dict[str, list[
         for i, frame in enumerate(batch.column("frame").to_pylist()):
             rows[chunk.entity_path].append((frame, {name: values[i] for name, values in columns.items()}))
     return {entity: sorted(items, key=lambda item: item[0]) for entity, items in rows.items()}
+
+
+def default_sigint() -> None:
+    """``preexec_fn`` for a child that must take Ctrl-C: a shell's background job (nohup, ``&``)
+    starts its children with SIGINT ignored, and heightpipe keeps an inherited SIG_IGN (as a batch
+    worker must), so without this the SIGINT tests fail whenever the suite itself runs in the
+    background."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

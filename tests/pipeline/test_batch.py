@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from media import REPO_ROOT, make_tiny_height_model, write_moving_box_video
+from media import REPO_ROOT, default_sigint, make_tiny_height_model, write_moving_box_video
 
 from pipeline.config import Config
 
@@ -221,7 +221,8 @@ def test_killed_half_way_then_resumed_without_redoing_finished_videos(long_archi
     out = tmp_path / "out"
     args = [sys.executable, "-m", "pipeline.cli", "batch", str(long_archive), "--out", str(out), "--workers", "2",
             "--no-progress", "--set", f'height.model="{model}"']
-    process = subprocess.Popen(args, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(args, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=default_sigint)
     deadline = time.monotonic() + 90
     while time.monotonic() < deadline and process.poll() is None:
         if (out / "manifest.json").exists() and any(e["status"] == "done" for e in manifest(out).values()):

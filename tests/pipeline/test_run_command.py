@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from media import REPO_ROOT, make_tiny_height_model, write_moving_box_video, write_truncated_avi
+from media import (REPO_ROOT, default_sigint, make_tiny_height_model, write_moving_box_video,
+                   write_truncated_avi)
 
 CSV_HEADER = ["frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score", "height_m", "height_std_m",
               "height_source"]
@@ -107,7 +108,8 @@ def _start_run(tmp_path, model_flag, frames=400):
     prefix = tmp_path / "long"
     process = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", str(video), "--out", str(prefix),
                                 "--no-progress", "--set", "output.flush_interval_s=0.5", *model_flag],
-                               cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=default_sigint)
     csv_path = Path(f"{prefix}.tracks.csv")
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
