@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from pipeline.eval_tracks import (DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox,
-                                  _trackeval_metrics, evaluate, format_report, miss_breakdown, mot_data, mot_metrics,
-                                  objects_followed, occlusion_events, plot_height_series)
+                                  _trackeval_metrics, evaluate, format_report, miss_breakdown, mot_data,
+                                  mot_metrics, objects_followed, occlusion_events, plot_height_series)
 
 
 def _truth(object_id, x, visibility=1.0, height=1.75, cls="person"):

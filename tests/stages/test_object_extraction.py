@@ -9,9 +9,9 @@ import pytest
 
 from pipeline.config import GroundConfig, TrackingConfig
 from pipeline.errors import ConfigError
-from pipeline.packets import CameraInfo, Frame, FramePacket
-from stages.object_extraction import (ObjectExtractor, coarse_class, foreground_ends, moving_beyond_ends,
-                                      seen_outline)
+from pipeline.packets import CameraInfo, Detection, Frame, FramePacket
+from stages.object_extraction import (ObjectExtractor, coarse_class, fit_box_to_ends, foreground_ends,
+                                      moving_beyond_ends, seen_outline)
 
 WIDTH, HEIGHT = 640, 360
 
@@ -503,3 +503,18 @@ def test_a_noisy_night_camera_is_denoised_and_its_walker_stays_one_detection():
     calm = ObjectExtractor(config, GroundConfig())
     calm.prime_background([clean] * 5)
     assert calm._denoise is False and calm._ends_subtractor is None
+
+
+def test_the_box_runs_from_the_crown_to_the_soles_unless_the_frame_cuts_the_top():
+    mask = np.zeros((30, 10), bool)
+    mask[3:28, 2:8] = True                      # grown blob: rows 3-27 of the box (y 100-129)
+    detection = Detection(box=(50.0, 100.0, 10.0, 30.0), height_m=1.7, top_xy=(55.0, 103.0),
+                          foot_xy=(55.0, 133.0), mask=mask, outline=mask.copy())
+    fit_box_to_ends(detection)
+    assert detection.box == (50.0, 103.0, 10.0, 30.0)    # crown row 103 to the soles' edge 133
+    assert detection.mask.shape == (30, 10) and detection.outline.shape == (30, 10)
+    assert detection.mask[:25].all(axis=0).sum() == 6 and not detection.mask[25:].any()
+    cut = Detection(box=(50.0, 0.0, 10.0, 30.0), height_m=1.7, top_xy=(55.0, 4.0), foot_xy=(55.0, 30.0),
+                    mask=mask, top_cut=True)
+    fit_box_to_ends(cut)
+    assert cut.box == (50.0, 0.0, 10.0, 30.0) and cut.mask is mask
