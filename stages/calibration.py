@@ -305,12 +305,13 @@ def project_points(camera: CameraInfo, points_world: np.ndarray) -> np.ndarray:
     return uv
 
 
-def pixel_to_ground(camera: CameraInfo, uv: np.ndarray) -> np.ndarray:
-    """Undistorted pixels to ground-plane points (N x 2 world x, y); NaN at or above the horizon."""
+def pixel_to_ground(camera: CameraInfo, uv: np.ndarray, z_m: float = 0.0) -> np.ndarray:
+    """Undistorted pixels to points on the ground plane, or on the horizontal plane ``z_m`` above
+    it (N x 2 world x, y); NaN where the ray does not reach it (at or above the horizon)."""
     rays = pixel_rays(camera, uv)
     centre = camera_centre(camera)
     with np.errstate(divide="ignore", invalid="ignore"):
-        scale = -centre[2] / rays[:, 2]
+        scale = (z_m - centre[2]) / rays[:, 2]
     ground = centre[:2] + scale[:, None] * rays[:, :2]
     ground[~(scale > 0)] = np.nan
     return ground

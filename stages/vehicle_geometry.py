@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.packets import CameraInfo
-from stages.calibration import camera_centre, pixel_rays
+from stages.calibration import camera_centre, pixel_rays, pixel_to_ground
 
 # The lower outline's points are taken this high above the road: its ends are the bumpers' lower
 # edges (~0.3 m up), but seen from the side it runs under the wheels (0 m). On the road plane the
@@ -152,17 +152,6 @@ def _cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float
     return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
 
-def _on_plane(camera: CameraInfo, uv: np.ndarray, z_m: float) -> np.ndarray:
-    """Where the pixels' rays meet the horizontal plane ``z_m`` up (N x 2 world x, y; NaN where they don't)."""
-    rays = pixel_rays(camera, uv)
-    eye = camera_centre(camera)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = (z_m - eye[2]) / rays[:, 2]
-    points = eye[:2] + scale[:, None] * rays[:, :2]
-    points[~(scale > 0)] = np.nan
-    return points
-
-
 def _l_shape_frame(points: np.ndarray):
     """Axes (unit vectors) and bounds of the rectangle whose sides the points hug best.
 
@@ -189,7 +178,7 @@ def _footprint(camera: CameraInfo, bottom_px: np.ndarray, heading: np.ndarray | 
     """(centre, 2x2 axes (rows: length, width), half extents, length assumed?) on the ground, or None."""
     if len(bottom_px) < MIN_COLUMNS:
         return None
-    ground = _on_plane(camera, bottom_px, BODY_CLEARANCE_M)
+    ground = pixel_to_ground(camera, bottom_px, BODY_CLEARANCE_M)
     ground = ground[np.all(np.isfinite(ground), axis=1)]
     if len(ground) < MIN_COLUMNS:
         return None
