@@ -355,29 +355,41 @@ def _trackeval_metrics():
 
 def mot_metrics(datas: list[dict], use_trackeval: bool | None = None) -> dict:
     """Combined HOTA / CLEAR / Identity over sequences (trackeval if available and allowed)."""
+    return mot_metrics_by_group(datas, {}, use_trackeval)[0]
+
+
+def mot_metrics_by_group(datas: list[dict], groups: dict[str, list[int]],
+                         use_trackeval: bool | None = None) -> tuple[dict, dict[str, dict]]:
+    """``mot_metrics`` over all sequences, and over each group of them (indices into ``datas``).
+
+    Each sequence is scored once; the groups only combine its parts.
+    """
     metrics = _trackeval_metrics() if use_trackeval in (None, True) else None
     if use_trackeval and metrics is None:
         raise HeightpipeError("trackeval is not installed (pip install --no-deps trackeval==1.3.0)")
     if metrics is not None:
-        combined = {}
-        for name, metric in metrics.items():
-            per_sequence = {str(i): metric.eval_sequence(d) for i, d in enumerate(datas)}
-            combined[name] = metric.combine_sequences(per_sequence)
-        hota, clear, identity = combined["HOTA"], combined["CLEAR"], combined["Identity"]
+        parts = [{name: metric.eval_sequence(d) for name, metric in metrics.items()} for d in datas]
+        combiners = {name: (lambda chosen, metric=metric: metric.combine_sequences(
+            {str(i): part for i, part in enumerate(chosen)})) for name, metric in metrics.items()}
         engine = "trackeval"
     else:
-        hota = _combine_hota([_hota(d) for d in datas])
-        clear = _combine_clear([_clear(d) for d in datas])
-        identity = _combine_identity([_identity(d) for d in datas])
+        parts = [{"HOTA": _hota(d), "CLEAR": _clear(d), "Identity": _identity(d)} for d in datas]
+        combiners = {"HOTA": _combine_hota, "CLEAR": _combine_clear, "Identity": _combine_identity}
         engine = "built-in"
-    return {
-        "engine": engine,
-        "HOTA": float(np.mean(hota["HOTA"])), "DetA": float(np.mean(hota["DetA"])),
-        "AssA": float(np.mean(hota["AssA"])),
-        "MOTA": float(clear["MOTA"]), "IDSW": int(clear["IDSW"]), "IDF1": float(identity["IDF1"]),
-        "gt_dets": int(clear["CLR_TP"] + clear["CLR_FN"]), "false_positives": int(clear["CLR_FP"]),
-        "misses": int(clear["CLR_FN"]),
-    }
+
+    def combined(indices) -> dict:
+        scores = {name: combine([parts[i][name] for i in indices]) for name, combine in combiners.items()}
+        hota, clear, identity = scores["HOTA"], scores["CLEAR"], scores["Identity"]
+        return {
+            "engine": engine,
+            "HOTA": float(np.mean(hota["HOTA"])), "DetA": float(np.mean(hota["DetA"])),
+            "AssA": float(np.mean(hota["AssA"])),
+            "MOTA": float(clear["MOTA"]), "IDSW": int(clear["IDSW"]), "IDF1": float(identity["IDF1"]),
+            "gt_dets": int(clear["CLR_TP"] + clear["CLR_FN"]), "false_positives": int(clear["CLR_FP"]),
+            "misses": int(clear["CLR_FN"]),
+        }
+
+    return combined(range(len(datas))), {group: combined(indices) for group, indices in groups.items()}
 
 
 def _hota(data: dict) -> dict:
@@ -688,8 +700,9 @@ def sequence_groups(runs: list[SequenceRun]) -> dict[str, list[int]]:
 def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: int = 10,
              use_trackeval: bool | None = None, min_box_px: float = 0.0) -> dict:
     datas = [mot_data(run, min_visibility, min_box_px) for run in runs]
-    mot_by_group = {group: dict(mot_metrics([datas[i] for i in indices], use_trackeval), sequences=len(indices))
-                    for group, indices in sequence_groups(runs).items()}
+    groups = sequence_groups(runs)
+    mot, mot_by_group = mot_metrics_by_group(datas, groups, use_trackeval)
+    mot_by_group = {group: dict(scores, sequences=len(groups[group])) for group, scores in mot_by_group.items()}
     objects = [o for run in runs for o in object_heights(run, min_visibility, min_box_px)]
     events = [e for run in runs for e in occlusion_events(run, min_visibility, min_hidden_frames=5,
                                                           min_box_px=min_box_px)]
@@ -703,7 +716,7 @@ def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: i
         "min_visibility": min_visibility, "min_box_px": min_box_px, "min_frames": min_frames,
         "sequences": [r.name for r in runs],
         "frames": sum(len(r.frames) for r in runs),
-        "mot": mot_metrics(datas, use_trackeval),
+        "mot": mot,
         "mot_by_group": mot_by_group,
         "height_all": height_summary(objects, min_frames),
         "height_by_class": by_class,
