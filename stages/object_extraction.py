@@ -180,13 +180,13 @@ class ObjectExtractor:
             raw = self.subtractor.apply(cv2.medianBlur(small, 3) if self._denoise else small)
             moving = raw == _FOREGROUND_VALUE
             changed = raw > 0      # moving, or darker like a shadow (dark hair, shoes)
+            # Sensor noise is per source pixel: downscaling averages it away, at source size it specks.
+            moving = drop_small_pieces(moving, self.config.min_foreground_piece_px * scale * scale)
+            packet.foreground = _resize_mask(moving, (src_w, src_h))
             ends_changed, ends_moving = changed, moving
             if self._ends_subtractor is not None:
                 unfiltered = self._ends_subtractor.apply(small)
                 ends_changed, ends_moving = unfiltered > 0, unfiltered == _FOREGROUND_VALUE
-            # Sensor noise is per source pixel: downscaling averages it away, at source size it specks.
-            moving = drop_small_pieces(moving, self.config.min_foreground_piece_px * scale * scale)
-            packet.foreground = _resize_mask(moving, (src_w, src_h))
 
         above, work_heights = self._above_ground(packet, work_size)
         grown = None if moving is None else cv2.dilate(moving.astype(np.uint8), self.grow_kernel).astype(bool)
@@ -330,7 +330,9 @@ class ObjectExtractor:
                              changed: np.ndarray | None, grown: np.ndarray | None,
                              work_heights: np.ndarray | None, height_map: np.ndarray | None, scale: float,
                              edge: np.ndarray, work_edge: np.ndarray,
-                             ends_masks: tuple[np.ndarray, np.ndarray] | None = None) -> list[Detection]:
+                             ends_masks: tuple[np.ndarray, np.ndarray] | None) -> list[Detection]:
+        """``ends_masks``: (changed, moving) masks the crown and soles are read from (None without
+        a background model)."""
         count, labels, stats, _ = cv2.connectedComponentsWithStats(candidate, connectivity=8)
         min_area_work = self.config.min_area_px * scale * scale
         detections = []
@@ -363,7 +365,7 @@ class ObjectExtractor:
                     beyond = (False, False) if grown is None else moving_beyond_ends(part, (x, y), grown,
                                                                                      work_edge)
                     ends = (None if moving is None
-                            else foreground_ends(part, (x, y), *(ends_masks or (changed, moving)), GROW_RADIUS))
+                            else foreground_ends(part, (x, y), *ends_masks, GROW_RADIUS))
                     outline = None if changed is None else seen_outline(part, (x, y), changed)
                     detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond, ends,
                                                          outline)
