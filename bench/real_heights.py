@@ -15,6 +15,12 @@ Per mode: confirmed person tracks, their mean / min / max final height, how many
 of the tracks' head-top and foot points (top and bottom centre of the track box) against the
 labelled points, in the frame the run worked in (undistorted where it undistorted).
 
+And how well the labelled people are tracked (:func:`identity_scores`): the share of labelled
+person-frames a track box covers (one-to-one, IoU >= 0.5 with the body box), the identity recall
+IDR (the share covered by the one track id assigned to each person, as IDF1 assigns them), ID
+switches, and the people covered in at least 80 % of their frames. Recall only: some people at
+the frame's edges are not labelled, so a track without a label is not a false positive.
+
     python -m bench.real_heights [--modes calibration,camera-height,self] [--out runs/real_heights]
                                  [--picture docs/oxford_heights.jpg [--picture-frame 60]]
 """
@@ -37,6 +43,8 @@ LABELS = OXFORD / "gt_with_geometry.csv"
 CAMERA_HEIGHT_M = 7.84
 PERSON_RANGE_M = (1.5, 2.1)
 MATCH_IOU = 0.3
+TRACKED_IOU = 0.5         # CLEAR's and IDF1's match threshold, for the tracking scores
+MOSTLY_TRACKED = 0.8
 MODES = ("calibration", "camera-height", "self")
 
 
@@ -63,6 +71,19 @@ class ModeResult:
     median_error_m: float = float("nan")
     head_px: float = float("nan")
     foot_px: float = float("nan")
+    identity: "IdentityScores | None" = None
+
+
+@dataclass
+class IdentityScores:
+    """How the labelled people are tracked (recall side only: see the module's docstring)."""
+
+    person_frames: int
+    covered: float
+    id_recall: float
+    id_switches: int
+    mostly_tracked: int
+    people: int
 
 
 def load_labels(undistort: bool) -> dict[int, list[LabelledPerson]]:
@@ -145,7 +166,50 @@ def score(mode: str, tracks_csv: Path, undistorted: bool) -> ModeResult:
         result.head_px = float(np.median(head_errors))
     if foot_errors:
         result.foot_px = float(np.median(foot_errors))
+    result.identity = identity_scores(labels, by_frame)
     return result
+
+
+def identity_scores(labels: dict[int, list[LabelledPerson]],
+                    by_frame: dict[int, list[dict]]) -> IdentityScores:
+    """Labelled people against every confirmed track box of the run (any class: a walker the run
+    classed "other" is still followed), matched one-to-one per frame at ``TRACKED_IOU``."""
+    from scipy.optimize import linear_sum_assignment
+
+    from stages.association import iou_matrix
+
+    together: dict[tuple[int, str], int] = {}
+    followed: dict[int, list[tuple[int, str]]] = {}
+    frames_of: dict[int, int] = {}
+    for frame, people in labels.items():
+        for person in people:
+            frames_of[person.person] = frames_of.get(person.person, 0) + 1
+        rows = by_frame.get(frame, [])
+        if not people or not rows:
+            continue
+        ious = iou_matrix([p.box for p in people], [tuple(float(r[k]) for k in "xywh") for r in rows])
+        for i, j in zip(*linear_sum_assignment(-ious)):
+            if ious[i, j] >= TRACKED_IOU:
+                key = (people[i].person, rows[j]["track_id"])
+                together[key] = together.get(key, 0) + 1
+                followed.setdefault(people[i].person, []).append((frame, rows[j]["track_id"]))
+    people_ids = sorted(frames_of)
+    track_ids = sorted({t for _, t in together})
+    id_tp = 0
+    if track_ids:
+        counts = np.array([[together.get((p, t), 0) for t in track_ids] for p in people_ids])
+        rows_, cols = linear_sum_assignment(-counts)
+        id_tp = int(counts[rows_, cols].sum())
+    switches = sum(sum(a[1] != b[1] for a, b in zip(seq, seq[1:]))
+                   for seq in (sorted(v) for v in followed.values()))
+    total = sum(frames_of.values())
+    return IdentityScores(
+        person_frames=total,
+        covered=sum(together.values()) / max(total, 1),
+        id_recall=id_tp / max(total, 1),
+        id_switches=int(switches),
+        mostly_tracked=sum(len(followed.get(p, [])) >= MOSTLY_TRACKED * frames_of[p] for p in people_ids),
+        people=len(people_ids))
 
 
 def run_mode(mode: str, out: Path, overrides: list[str]) -> ModeResult:
@@ -213,11 +277,15 @@ def draw_frame(tracks_csv: Path, frame_index: int, out: Path) -> None:
 
 def format_table(results: list[ModeResult]) -> str:
     lines = ["| mode | person tracks | mean (m) | min-max (m) | outside 1.5-2.1 | matched | "
-             "median error (cm) | head px | foot px | note |", "|---" * 10 + "|"]
+             "median error (cm) | head px | foot px | covered | IDR | ID switches | mostly tracked | note |",
+             "|---" * 14 + "|"]
     for r in results:
+        i = r.identity
+        tracking = ("| - | - | - | - " if i is None else
+                    f"| {i.covered:.3f} | {i.id_recall:.3f} | {i.id_switches} | {i.mostly_tracked}/{i.people} ")
         lines.append(f"| {r.mode} | {r.persons} | {r.mean_m:.3f} | {r.min_m:.2f}-{r.max_m:.2f} | "
                      f"{r.outside} | {r.matched} | {100 * r.median_error_m:.1f} | {r.head_px:.1f} | "
-                     f"{r.foot_px:.1f} | {r.note} |")
+                     f"{r.foot_px:.1f} {tracking}| {r.note} |")
     return "\n".join(lines)
 
 

@@ -1,7 +1,7 @@
 """`heightpipe calibrate SOURCE`: self-calibrate a camera from the people walking in its video.
 
-Runs the early stages (capture, undistortion, background subtraction, tracking; not the
-network, whose metres need the camera height this command is looking for), collects the head
+Runs the stages of ``heightpipe run`` for an uncalibrated camera (the same tracks; the network's
+metres are not used, they need the camera height this command is looking for), collects the head
 and foot points of upright tracked people and fits horizon and camera height with a population
 height prior (stages/self_calibration.py). Prints a ``[camera]`` snippet for config.toml on
 stdout and the fit's report on stderr.
@@ -37,16 +37,10 @@ def main(args: argparse.Namespace, config) -> int:
     from pipeline.errors import ConfigError, HeightpipeError
     from pipeline.packets import FramePacket
     from pipeline.run_command import apply_flags
-    from pipeline.runner import prime_background
-    from stages.calibration import ASSUMED_CAMERA_HEIGHT_M, camera_for_run, has_distortion
+    from pipeline.runner import build_stages, prime_background
+    from stages.calibration import ASSUMED_CAMERA_HEIGHT_M, camera_for_run
     from stages.capture import open_source
-    from stages.ground_segmentation import GroundSegmenter
-    from stages.height_inference import HeightEstimator
-    from stages.heightnet_model import HeightNetModel
-    from stages.object_extraction import ObjectExtractor
     from stages.self_calibration import HeadFootCollector, HeightPrior, self_calibrate
-    from stages.tracking import TrackingStage
-    from stages.undistortion import Undistorter
 
     apply_flags(args, config)
     if config.capture.stride < 1:
@@ -64,15 +58,10 @@ def main(args: argparse.Namespace, config) -> int:
         # A calibration file's pose is dropped too; the network's scale-free heights are taken
         # at an assumed camera height: they only tell what stands above the ground.
         camera = dataclasses.replace(camera, R=None, t=None, height_m=ASSUMED_CAMERA_HEIGHT_M, source="none")
-        model = HeightNetModel(config.height.model, config.height.threads)
+        stages = [stage for _, stage in build_stages(config, camera)]
     except HeightpipeError:
         source.close()
         raise
-    stages = []
-    if has_distortion(camera):
-        stages.append(Undistorter(camera))
-    stages += [GroundSegmenter(config.ground, model), HeightEstimator(model),
-               ObjectExtractor(config.tracking, config.ground), TrackingStage(config.tracking)]
     prime_background(stages, source.background_sample(config.tracking.background_prime_frames,
                                                        config.tracking.background_prime_s))
     collector = HeadFootCollector(width, height)
