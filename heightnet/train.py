@@ -26,6 +26,7 @@ from heightnet.data import Augmentation, CachedSequence, PairDataset
 from heightnet.encoding import TARGETS
 from heightnet.losses import LossWeights, heightnet_loss
 from heightnet.model import build_model
+from heightnet.onnx_weights import freeze_batchnorm, load_onnx_weights
 from pipeline.config import TrainConfig
 from pipeline.errors import ConfigError
 
@@ -78,15 +79,17 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
     net = build_model(config.architecture, config.target, config.backbone)
     optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     step = 0
-    if resume and checkpoint_path.is_file():
+    if checkpoint_path.is_file():
+        if not resume:
+            raise ConfigError(f"{checkpoint_path} exists: pass --resume to continue it or choose another "
+                              f"train.out")
         state = load_checkpoint(checkpoint_path)
         _check_resumable(state, config)
         net.load_state_dict(state["model"])
         optimiser.load_state_dict(state["optimiser"])
         step = int(state["step"])
-    elif not resume and checkpoint_path.is_file():
-        raise ConfigError(f"{checkpoint_path} exists: pass --resume to continue it or choose another "
-                          f"train.out")
+    elif config.init_onnx:
+        load_onnx_weights(net, Path(config.init_onnx))
     (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
 
     dataset = PairDataset(sequences, config.input_width, config.input_height, config.target,
@@ -100,6 +103,8 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
     if log_file.tell() == 0:
         log.writeheader()
     net.train()
+    if config.init_onnx:
+        freeze_batchnorm(net)     # its BatchNorms were folded at export: identities with a bias now
     sums: dict[str, float] = {}
     last: dict[str, float] = {}
     counted = 0

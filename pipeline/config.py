@@ -237,6 +237,8 @@ class TrainConfig:
     """Steps between checkpoints (and log/plot refreshes)."""
     threads: int = 2
     """Torch CPU threads."""
+    init_onnx: str = ""
+    """Start from this exported model's weights (fine-tuning; BatchNorms stay frozen), "" = from scratch."""
 
 
 @dataclass
