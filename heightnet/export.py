@@ -103,4 +103,5 @@ def export_checkpoint(checkpoint_path: Path, out: Path) -> ExportReport:
     checkpoint = load_checkpoint(checkpoint_path)
     net = model_from_checkpoint(checkpoint).eval()
     return export_model(net, out, checkpoint["input_width"], checkpoint["input_height"],
-                        checkpoint.get("data_hash", ""), int(checkpoint["step"]))
+                        checkpoint.get("data_hash", ""),
+                        int(checkpoint.get("init_steps", 0)) + int(checkpoint["step"]))

@@ -114,6 +114,15 @@ def _check_against_onnx(net: HeightNet, path: Path) -> None:
         raise ModelError(f"weights read from {path} do not reproduce it (max difference {worst:.3g})")
 
 
+def trained_steps(path: Path) -> int:
+    """The optimiser steps behind an exported model (its metadata; 0 if it does not say)."""
+    import onnx
+
+    model = onnx.load(str(path), load_external_data=False)
+    value = {p.key: p.value for p in model.metadata_props}.get("heightpipe.trained_steps", "0")
+    return int(value) if value.isdigit() else 0
+
+
 def freeze_batchnorm(net: torch.nn.Module) -> None:
     """BatchNorms in eval mode (running statistics, not the batch's), whatever ``net.train()`` says."""
     for module in net.modules():

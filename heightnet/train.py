@@ -26,7 +26,7 @@ from heightnet.data import Augmentation, CachedSequence, PairDataset
 from heightnet.encoding import TARGETS
 from heightnet.losses import LossWeights, heightnet_loss
 from heightnet.model import build_model
-from heightnet.onnx_weights import freeze_batchnorm, load_onnx_weights
+from heightnet.onnx_weights import freeze_batchnorm, load_onnx_weights, trained_steps
 from pipeline.config import TrainConfig
 from pipeline.errors import ConfigError
 
@@ -79,6 +79,7 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
     net = build_model(config.architecture, config.target, config.backbone)
     optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     step = 0
+    init_steps = 0              # steps behind the weights a fine-tuning run started from
     if checkpoint_path.is_file():
         if not resume:
             raise ConfigError(f"{checkpoint_path} exists: pass --resume to continue it or choose another "
@@ -88,8 +89,10 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
         net.load_state_dict(state["model"])
         optimiser.load_state_dict(state["optimiser"])
         step = int(state["step"])
+        init_steps = int(state.get("init_steps", 0))
     elif config.init_onnx:
         load_onnx_weights(net, Path(config.init_onnx))
+        init_steps = trained_steps(Path(config.init_onnx))
     (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
 
     dataset = PairDataset(sequences, config.input_width, config.input_height, config.target,
@@ -143,7 +146,7 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
                 log_file.flush()
                 sums, counted = {}, 0
             if step % config.checkpoint_every == 0 or step == end:
-                _save(checkpoint_path, net, optimiser, step, config, data_hash)
+                _save(checkpoint_path, net, optimiser, step, config, data_hash, init_steps)
                 plot_log(run_dir / "log.csv", run_dir / "loss.png")
     finally:
         bar.close()
@@ -159,9 +162,9 @@ def _check_resumable(state: dict[str, Any], config: TrainConfig) -> None:
 
 
 def _save(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer, step: int,
-          config: TrainConfig, data_hash: str) -> None:
+          config: TrainConfig, data_hash: str, init_steps: int = 0) -> None:
     save_checkpoint(path, {
-        "model": net.state_dict(), "optimiser": optimiser.state_dict(), "step": step,
+        "model": net.state_dict(), "optimiser": optimiser.state_dict(), "step": step, "init_steps": init_steps,
         "architecture": config.architecture, "backbone": config.backbone, "target": config.target,
         "input_width": config.input_width, "input_height": config.input_height,
         "data_hash": data_hash, "config": dataclasses.asdict(config)})

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from heightnet.checkpoint import load_checkpoint, model_from_checkpoint
-from heightnet.export import export_model
+from heightnet.export import export_checkpoint, export_model
 from heightnet.model import ExportedHeightNet, build_model
 from heightnet.onnx_weights import load_onnx_weights, module_path
 from heightnet.train import train
@@ -32,7 +32,7 @@ def exported(tmp_path_factory):
                 module.bias.uniform_(-0.2, 0.2)
     net.eval()
     path = tmp_path_factory.mktemp("onnx") / "model.onnx"
-    export_model(net, path, 96, 64)
+    export_model(net, path, 96, 64, trained_steps=300)
     return net, path
 
 
@@ -85,6 +85,14 @@ def test_training_from_onnx_starts_at_its_weights_and_keeps_batchnorm_frozen(tmp
     drift = float((trained["aspp.reduce.0.weight"] - before["aspp.reduce.0.weight"]).abs().max())
     assert drift < 0.05 and np.isfinite(drift)
     # A resumed run keeps them frozen and needs no ONNX file any more.
-    train(dataclasses.replace(config, steps=3), cached_sequences, resume=True, progress=False)
-    assert torch.equal(model_from_checkpoint(load_checkpoint(tmp_path / "run" / "checkpoint.pt"))
-                       .state_dict()["encoder.stem.1.running_mean"], before["encoder.stem.1.running_mean"])
+    path.rename(path.with_suffix(".moved"))
+    try:
+        train(dataclasses.replace(config, steps=3), cached_sequences, resume=True, progress=False)
+    finally:
+        path.with_suffix(".moved").rename(path)
+    state = load_checkpoint(tmp_path / "run" / "checkpoint.pt")
+    assert torch.equal(model_from_checkpoint(state).state_dict()["encoder.stem.1.running_mean"],
+                       before["encoder.stem.1.running_mean"])
+    # Exported, it counts the steps behind the weights it started from.
+    report = export_checkpoint(tmp_path / "run" / "checkpoint.pt", tmp_path / "tuned.onnx")
+    assert state["init_steps"] == 300 and report.metadata["heightpipe.trained_steps"] == "303"
