@@ -31,6 +31,7 @@ the foreground-share test). KNN is the default.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -87,6 +88,22 @@ DENOISE_MIN_SIGMA = 4.5
 PRIME_REPEATS = 50
 # Matched points an object needs for a height-consistency residual.
 MIN_CONSISTENCY_POINTS = 3
+
+
+@dataclass
+class ForegroundMasks:
+    """One frame's background-model masks at work size."""
+
+    moving: np.ndarray
+    """Foreground, specks dropped."""
+    changed: np.ndarray
+    """Moving, or darker like a shadow (dark hair, shoes)."""
+    grown: np.ndarray
+    """``moving`` dilated by ``GROW_RADIUS``: what the height map may fill in."""
+    ends_changed: np.ndarray
+    ends_moving: np.ndarray
+    """The masks the crown and soles are read from: ``changed`` and ``moving``, or those of the
+    unfiltered frame where the frames are denoised."""
 
 
 def make_background_subtractor(method: str):
@@ -172,44 +189,43 @@ class ObjectExtractor:
         work_size = (max(1, round(src_w * scale)), max(1, round(src_h * scale)))
         small = image if scale == 1.0 else cv2.resize(image, work_size, interpolation=cv2.INTER_AREA)
 
-        moving = changed = None
+        masks = None
         if self.subtractor is not None:
             small = self._compensate_exposure(small)
             if self._denoise is None:
                 self._set_denoise(self._noisy([small]))
             raw = self.subtractor.apply(cv2.medianBlur(small, 3) if self._denoise else small)
-            moving = raw == _FOREGROUND_VALUE
-            changed = raw > 0      # moving, or darker like a shadow (dark hair, shoes)
             # Sensor noise is per source pixel: downscaling averages it away, at source size it specks.
-            moving = drop_small_pieces(moving, self.config.min_foreground_piece_px * scale * scale)
+            moving = drop_small_pieces(raw == _FOREGROUND_VALUE, self.config.min_foreground_piece_px * scale * scale)
+            changed = raw > 0
             packet.foreground = _resize_mask(moving, (src_w, src_h))
             ends_changed, ends_moving = changed, moving
             if self._ends_subtractor is not None:
                 unfiltered = self._ends_subtractor.apply(small)
                 ends_changed, ends_moving = unfiltered > 0, unfiltered == _FOREGROUND_VALUE
+            grown = cv2.dilate(moving.astype(np.uint8), self.grow_kernel).astype(bool)
+            masks = ForegroundMasks(moving, changed, grown, ends_changed, ends_moving)
 
         above, work_heights = self._above_ground(packet, work_size)
-        grown = None if moving is None else cv2.dilate(moving.astype(np.uint8), self.grow_kernel).astype(bool)
-        if moving is None and above is None:
+        if masks is None and above is None:
             packet.detections = []
             return packet
-        if moving is None:
+        if masks is None:
             candidate = above
         elif above is None:
             # No height map to fill holes: close them with the same growth, then shrink back
             # (eroding the grown foreground is that closing).
-            candidate = cv2.erode(grown.astype(np.uint8), self.grow_kernel)
+            candidate = cv2.erode(masks.grown.astype(np.uint8), self.grow_kernel)
         else:
             # Foreground grown by a few pixels: flat-coloured parts of an object (a car roof, a
             # plain coat) drop out of the background model; the height map fills them back in.
-            candidate = grown & above
+            candidate = masks.grown & above
 
         candidate = candidate.astype(np.uint8)
         candidate = cv2.morphologyEx(candidate, cv2.MORPH_CLOSE, self.kernel)
         edge, work_edge = self._image_edge(packet.image_valid, (src_w, src_h), scale, work_size)
-        detections = self._blobs_to_detections(candidate, moving, changed, grown, work_heights,
-                                               packet.height_map, scale, edge, work_edge,
-                                               None if moving is None else (ends_changed, ends_moving))
+        detections = self._blobs_to_detections(candidate, masks, work_heights, packet.height_map, scale,
+                                               edge, work_edge)
         if packet.height_map is not None:
             self._add_consistency_noise(detections, packet)
         packet.detections = detections
@@ -326,13 +342,10 @@ class ObjectExtractor:
             above &= ~_resize_mask(packet.ground_mask, work_size)
         return above, heights
 
-    def _blobs_to_detections(self, candidate: np.ndarray, moving: np.ndarray | None,
-                             changed: np.ndarray | None, grown: np.ndarray | None,
+    def _blobs_to_detections(self, candidate: np.ndarray, masks: ForegroundMasks | None,
                              work_heights: np.ndarray | None, height_map: np.ndarray | None, scale: float,
-                             edge: np.ndarray, work_edge: np.ndarray,
-                             ends_masks: tuple[np.ndarray, np.ndarray] | None) -> list[Detection]:
-        """``ends_masks``: (changed, moving) masks the crown and soles are read from (None without
-        a background model)."""
+                             edge: np.ndarray, work_edge: np.ndarray) -> list[Detection]:
+        """``masks``: None without a background model."""
         count, labels, stats, _ = cv2.connectedComponentsWithStats(candidate, connectivity=8)
         min_area_work = self.config.min_area_px * scale * scale
         detections = []
@@ -341,7 +354,7 @@ class ObjectExtractor:
             if area < min_area_work:
                 continue
             blob = labels[y:y + h, x:x + w] == label
-            fg = None if moving is None else moving[y:y + h, x:x + w]
+            fg = None if masks is None else masks.moving[y:y + h, x:x + w]
             heights = None if work_heights is None else work_heights[y:y + h, x:x + w]
             # Rain streaks and swaying leaves over a building or a tree are foreground too,
             # but sparse: a moving object is mostly foreground itself.
@@ -362,11 +375,12 @@ class ObjectExtractor:
                     if (fg is not None and len(parts) > 1
                             and fg[part].mean() < PART_FOREGROUND_FACTOR * self.config.min_foreground_share):
                         continue
-                    beyond = (False, False) if grown is None else moving_beyond_ends(part, (x, y), grown,
-                                                                                     work_edge)
-                    ends = (None if moving is None
-                            else foreground_ends(part, (x, y), *ends_masks, GROW_RADIUS))
-                    outline = None if changed is None else seen_outline(part, (x, y), changed)
+                    if masks is None:
+                        beyond, ends, outline = (False, False), None, None
+                    else:
+                        beyond = moving_beyond_ends(part, (x, y), masks.grown, work_edge)
+                        ends = foreground_ends(part, (x, y), masks.ends_changed, masks.ends_moving, GROW_RADIUS)
+                        outline = seen_outline(part, (x, y), masks.changed)
                     detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond, ends,
                                                          outline)
                     if detection is not None:
