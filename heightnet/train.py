@@ -80,6 +80,7 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
     optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     step = 0
     init_steps = 0              # steps behind the weights a fine-tuning run started from
+    frozen = bool(config.init_onnx)   # BatchNorms folded at export: identities with a bias now
     if checkpoint_path.is_file():
         if not resume:
             raise ConfigError(f"{checkpoint_path} exists: pass --resume to continue it or choose another "
@@ -90,6 +91,7 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
         optimiser.load_state_dict(state["optimiser"])
         step = int(state["step"])
         init_steps = int(state.get("init_steps", 0))
+        frozen = bool(state.get("frozen_batchnorm", False))
     elif config.init_onnx:
         load_onnx_weights(net, Path(config.init_onnx))
         init_steps = trained_steps(Path(config.init_onnx))
@@ -106,8 +108,8 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
     if log_file.tell() == 0:
         log.writeheader()
     net.train()
-    if config.init_onnx:
-        freeze_batchnorm(net)     # its BatchNorms were folded at export: identities with a bias now
+    if frozen:
+        freeze_batchnorm(net)
     sums: dict[str, float] = {}
     last: dict[str, float] = {}
     counted = 0
@@ -146,7 +148,7 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
                 log_file.flush()
                 sums, counted = {}, 0
             if step % config.checkpoint_every == 0 or step == end:
-                _save(checkpoint_path, net, optimiser, step, config, data_hash, init_steps)
+                _save(checkpoint_path, net, optimiser, step, config, data_hash, init_steps, frozen)
                 plot_log(run_dir / "log.csv", run_dir / "loss.png")
     finally:
         bar.close()
@@ -162,9 +164,10 @@ def _check_resumable(state: dict[str, Any], config: TrainConfig) -> None:
 
 
 def _save(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer, step: int,
-          config: TrainConfig, data_hash: str, init_steps: int = 0) -> None:
+          config: TrainConfig, data_hash: str, init_steps: int = 0, frozen: bool = False) -> None:
     save_checkpoint(path, {
-        "model": net.state_dict(), "optimiser": optimiser.state_dict(), "step": step, "init_steps": init_steps,
+        "model": net.state_dict(), "optimiser": optimiser.state_dict(), "step": step,
+        "init_steps": init_steps, "frozen_batchnorm": frozen,
         "architecture": config.architecture, "backbone": config.backbone, "target": config.target,
         "input_width": config.input_width, "input_height": config.input_height,
         "data_hash": data_hash, "config": dataclasses.asdict(config)})
