@@ -12,7 +12,7 @@ where export changed them:
 * GroupNorm is exported as an instance norm, then a Mul by its weight and an Add of its bias;
 * equal weights (a freshly initialised bias) are stored once, other names point to it.
 
-The rebuilt network is checked against ONNX Runtime on a random image before it is returned.
+Loading checks the rebuilt network against ONNX Runtime on a random image.
 """
 
 from __future__ import annotations
@@ -63,15 +63,15 @@ def load_onnx_weights(net: HeightNet, path: Path) -> None:
     state = {key: torch.from_numpy(arrays[PREFIX + key].copy())
              for key in expected if PREFIX + key in arrays}
     for node in graph.node:
-        path_ = module_path(node.name)
-        module = modules.get(path_)
-        if node.op_type == "Conv" and isinstance(module, torch.nn.Conv2d) and path_ + ".weight" not in state:
-            _unfold_batchnorm(state, modules, path_, arrays[node.input[1]],
+        name = module_path(node.name)
+        module = modules.get(name)
+        if node.op_type == "Conv" and isinstance(module, torch.nn.Conv2d) and name + ".weight" not in state:
+            _unfold_batchnorm(state, modules, name, arrays[node.input[1]],
                               arrays[node.input[2]] if len(node.input) > 2 else None)
         elif node.op_type in ("Mul", "Add") and isinstance(module, torch.nn.GroupNorm):
-            consts = [arrays[name] for name in node.input if name in arrays]
+            consts = [arrays[i] for i in node.input if i in arrays]
             if len(consts) == 1:
-                state[path_ + (".weight" if node.op_type == "Mul" else ".bias")] = torch.from_numpy(
+                state[name + (".weight" if node.op_type == "Mul" else ".bias")] = torch.from_numpy(
                     consts[0].reshape(-1).copy())
     missing = [key for key in expected if key not in state]
     if missing or any(state[k].shape != expected[k].shape for k in expected):
