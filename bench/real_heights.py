@@ -71,7 +71,7 @@ class ModeResult:
     median_error_m: float = float("nan")
     head_px: float = float("nan")
     foot_px: float = float("nan")
-    identity: "IdentityScores | None" = None
+    identity: IdentityScores | None = None
 
 
 @dataclass
@@ -198,8 +198,8 @@ def identity_scores(labels: dict[int, list[LabelledPerson]],
     id_tp = 0
     if track_ids:
         counts = np.array([[together.get((p, t), 0) for t in track_ids] for p in people_ids])
-        rows_, cols = linear_sum_assignment(-counts)
-        id_tp = int(counts[rows_, cols].sum())
+        people_index, track_index = linear_sum_assignment(-counts)   # one track id per person
+        id_tp = int(counts[people_index, track_index].sum())
     switches = sum(sum(a[1] != b[1] for a, b in zip(seq, seq[1:]))
                    for seq in (sorted(v) for v in followed.values()))
     total = sum(frames_of.values())
