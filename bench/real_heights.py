@@ -43,7 +43,6 @@ LABELS = OXFORD / "gt_with_geometry.csv"
 CAMERA_HEIGHT_M = 7.84
 PERSON_RANGE_M = (1.5, 2.1)
 MATCH_IOU = 0.3
-TRACKED_IOU = 0.5         # CLEAR's and IDF1's match threshold, for the tracking scores
 MOSTLY_TRACKED = 0.8
 MODES = ("calibration", "camera-height", "self")
 
@@ -173,10 +172,11 @@ def score(mode: str, tracks_csv: Path, undistorted: bool) -> ModeResult:
 def identity_scores(labels: dict[int, list[LabelledPerson]],
                     by_frame: dict[int, list[dict]]) -> IdentityScores:
     """Labelled people against every confirmed track box of the run (any class: a walker the run
-    classed "other" is still followed), matched one-to-one per frame at ``TRACKED_IOU``."""
+    classed "other" is still followed), matched one-to-one per frame as ``eval-tracks`` matches
+    (IoU >= 0.5)."""
     from scipy.optimize import linear_sum_assignment
 
-    from stages.association import iou_matrix
+    from pipeline.eval_tracks import matched_at_iou
 
     together: dict[tuple[int, str], int] = {}
     followed: dict[int, list[tuple[int, str]]] = {}
@@ -187,12 +187,10 @@ def identity_scores(labels: dict[int, list[LabelledPerson]],
         rows = by_frame.get(frame, [])
         if not people or not rows:
             continue
-        ious = iou_matrix([p.box for p in people], [tuple(float(r[k]) for k in "xywh") for r in rows])
-        for i, j in zip(*linear_sum_assignment(-ious)):
-            if ious[i, j] >= TRACKED_IOU:
-                key = (people[i].person, rows[j]["track_id"])
-                together[key] = together.get(key, 0) + 1
-                followed.setdefault(people[i].person, []).append((frame, rows[j]["track_id"]))
+        for i, j in matched_at_iou([p.box for p in people], [tuple(float(r[k]) for k in "xywh") for r in rows]):
+            key = (people[i].person, rows[j]["track_id"])
+            together[key] = together.get(key, 0) + 1
+            followed.setdefault(people[i].person, []).append((frame, rows[j]["track_id"]))
     people_ids = sorted(frames_of)
     track_ids = sorted({t for _, t in together})
     id_tp = 0
