@@ -1,7 +1,7 @@
 """HeightNet v2 training data: generator frames -> a decoded cache -> pairs with exact targets.
 
 The cache (``<data>/.contact_cache/<sequence>/``) holds, per sequence, the frames at their
-rendered resolution: RGB, the exact ground-contact offsets (``heightnet/contact.py``, from the
+rendered resolution: RGB, the exact ground-contact offsets (``stages/ground_contact.py``, from the
 generator's depth and camera), the height map, the semantic classes, the mover instances, the
 feature matches between consecutive frames (for the height-consistency loss) and the camera.
 
@@ -26,7 +26,7 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from heightnet.contact import PinholeCamera, angles_of, contact_offsets, world_rays
+from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
 from heightnet.data import apply_colour, colour_jitter, match_features, Augmentation
 from heightnet.normalisation import normalise
 

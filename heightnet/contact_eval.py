@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 import torch
 
-from heightnet.contact import PinholeCamera, camera_from_angles, heights_from_offsets
+from stages.ground_contact import PinholeCamera, camera_from_angles, heights_from_offsets
 from heightnet.contact_data import CLASS_GROUPS, ContactSequence, camera_channels, camera_targets
 from heightnet.normalisation import normalise
 from synth.dataset import CLASS_NAMES

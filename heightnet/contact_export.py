@@ -3,7 +3,7 @@
 The graph ends at what the network knows: ``offsets`` (1 x 2 x H x W, input pixels to each
 pixel's ground-contact point), ``ground_logit`` (1 x 1 x H x W) and ``camera`` (1 x 6: pitch,
 roll, log vertical focal length in image heights, then their log-variances). Metres need the
-camera and come from the closed form in ``heightnet/contact.py`` at run time. The metadata says
+camera and come from the closed form in ``stages/ground_contact.py`` at run time. The metadata says
 so (``heightpipe.output_units = ground_contact_offsets``) beside the usual input contract.
 """
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from heightnet.contact import torch_heights_from_offsets
+from stages.ground_contact import torch_heights_from_offsets
 from heightnet.losses import sample_at
 
 ABOVE_GROUND_M = 0.1

@@ -3,7 +3,7 @@
 Outputs for an input of W x H (both multiples of 32):
 
 * ``offsets`` B x 2 x H x W: (du, dv) in input pixels to each pixel's ground-contact point
-  (``heightnet/contact.py``), predicted at half resolution and upsampled — a full-resolution
+  (``stages/ground_contact.py``), predicted at half resolution and upsampled — a full-resolution
   head costs more on a CPU than any encoder layer for almost no parameters;
 * ``ground_logit`` B x 1 x H x W: the ground plane (the paper's segmentation stage);
 * ``camera`` B x 6: pitch (rad), roll (rad), log of the vertical focal length in image heights,

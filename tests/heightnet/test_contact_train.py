@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from fake_synth import fake_sequences
-from heightnet.contact import heights_from_offsets
+from stages.ground_contact import heights_from_offsets
 from heightnet.contact_data import ContactPairDataset, ContactSampling, build_contact_cache
 from heightnet.contact_eval import evaluate
 from heightnet.contact_export import export_contact
@@ -36,7 +36,7 @@ def test_samples_decode_to_their_own_heights(contact_sequences, sampling):
     """Whatever the window, flip and squash, the sample's offsets decode with the sample's camera
     to the sample's heights (to nearest-neighbour resampling of the labels)."""
     dataset = ContactPairDataset(contact_sequences, 64, 48, sampling, seed=3)
-    from heightnet.contact import PinholeCamera
+    from stages.ground_contact import PinholeCamera
     for item in range(len(dataset)):
         sample = dataset[item]
         camera = PinholeCamera(sample["K"].astype(np.float64), sample["R"].astype(np.float64),

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from heightnet.contact import (PinholeCamera, angles_of, camera_from_angles, contact_offsets,
+from stages.ground_contact import (PinholeCamera, angles_of, camera_from_angles, contact_offsets,
                                heights_from_offsets, torch_heights_from_offsets)
 from stages.calibration import rotation_from_angles
 
