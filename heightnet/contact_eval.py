@@ -29,6 +29,9 @@ from heightnet.normalisation import normalise
 from synth.dataset import CLASS_NAMES
 
 GROUPS = ("person", "cyclist", "car/van", "truck/bus")
+# Decoded heights are clipped as the run-time stage clips them: nothing stands below the ground,
+# and a contact point predicted at the horizon must not decode to kilometres.
+MAX_HEIGHT_M = 50.0
 BIG = "truck/bus"
 
 
@@ -96,8 +99,8 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
                                   interpolation=cv2.INTER_NEAREST_EXACT)
             semantic = cv2.resize(np.asarray(seq.semantic[t]), (width, height),
                                   interpolation=cv2.INTER_NEAREST_EXACT)
-            pred = heights_from_offsets(true_camera, offsets)
-            pred_heads = heights_from_offsets(head_camera, offsets)
+            pred = np.clip(heights_from_offsets(true_camera, offsets), 0, MAX_HEIGHT_M)
+            pred_heads = np.clip(heights_from_offsets(head_camera, offsets), 0, MAX_HEIGHT_M)
             mover = (instance > 0) & np.isfinite(truth) & (truth > 0.1)
             big = np.zeros_like(mover)
             for obj in np.unique(instance[instance > 0]):
