@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _vehicles(sequence, every: int):
     """(class, true height, box height on the true mask, matched detection or None, rgb, camera)."""
-    from pipeline.config import load_config
+    from core.config import load_config
     from pipeline.eval_tracks import build_eval_stages, matched_at_iou, prime_sequence_background, sequence_packets
     from stages.vehicle_geometry import vehicle_box
 

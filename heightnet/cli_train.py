@@ -21,7 +21,7 @@ def main(args: argparse.Namespace, config) -> int:
 
     from heightnet.data import build_cache, dataset_hash
     from heightnet.train import train
-    from pipeline.errors import ConfigError
+    from core.errors import ConfigError
     from synth.dataset import list_sequences
 
     train_config = dataclasses.replace(config.train, data=args.data or config.train.data,

@@ -13,7 +13,7 @@ import torch
 from heightnet.checkpoint import load_checkpoint, model_from_checkpoint
 from heightnet.model import ExportedHeightNet, HeightNet
 from heightnet.normalisation import MEAN, STD
-from pipeline.errors import ModelError
+from core.errors import ModelError
 
 OPSET = 17
 

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from heightnet.normalisation import normalise
-from pipeline.errors import ConfigError, ModelError, SourceError
+from core.errors import ConfigError, ModelError, SourceError
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SHIPPED_MODEL = REPO_ROOT / "stages" / "models" / "heightnet.onnx"

@@ -16,8 +16,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.config import Config
-from pipeline.errors import HeightpipeError
+from core.config import Config
+from core.errors import HeightpipeError
 
 MANIFEST_NAME = "manifest.json"
 MANIFEST_VERSION = 1

@@ -34,8 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace, config) -> int:
     from tqdm import tqdm
 
-    from pipeline.errors import ConfigError, HeightpipeError
-    from pipeline.packets import FramePacket
+    from core.errors import ConfigError, HeightpipeError
+    from core.packets import FramePacket
     from pipeline.run_command import apply_flags
     from pipeline.runner import build_stages, prime_background
     from stages.calibration import ASSUMED_CAMERA_HEIGHT_M, camera_for_run

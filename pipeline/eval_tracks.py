@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.config import Config
-from pipeline.errors import HeightpipeError
+from core.config import Config
+from core.errors import HeightpipeError
 
 # Generator classes in the tracker's coarse terms.
 COARSE_CLASS = {"pedestrian": "person", "cyclist": "cyclist", "car": "vehicle", "van": "vehicle",
@@ -171,7 +171,7 @@ class OracleHeights:
 
 
 def camera_info(sequence):
-    from pipeline.packets import CameraInfo
+    from core.packets import CameraInfo
 
     camera = sequence.meta.camera
     return CameraInfo(width=camera.width, height=camera.height, K=np.asarray(camera.K, float),
@@ -228,7 +228,7 @@ def sequence_packets(sequence, stages: list[tuple[str, object]], max_frames: int
     """
     import cv2
 
-    from pipeline.packets import Frame, FramePacket
+    from core.packets import Frame, FramePacket
 
     camera = camera_info(sequence)
     count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))

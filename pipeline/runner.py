@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
-from pipeline.config import Config
-from pipeline.packets import CameraInfo, FramePacket
+from core.config import Config
+from core.packets import CameraInfo, FramePacket
 from stages.capture import CaptureStats, FrameSource, open_source
 
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.config import GroundConfig, MatchingConfig
-from pipeline.packets import FeatureMatches, FramePacket
+from core.config import GroundConfig, MatchingConfig
+from core.packets import FeatureMatches, FramePacket
 
 FORWARD_BACKWARD_MAX_PX = 1.0
 # Share of the ORB budget spent on above-ground regions: movers are small but matter most.

@@ -32,8 +32,8 @@ from collections import deque
 
 import numpy as np
 
-from pipeline.config import CameraConfig
-from pipeline.packets import CameraInfo, Detection, FramePacket
+from core.config import CameraConfig
+from core.packets import CameraInfo, Detection, FramePacket
 from stages.calibration import has_distortion, heights_from_foot_top, is_calibrated, undistort_pixels
 from stages.vehicle_geometry import vehicle_box
 

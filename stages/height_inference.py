@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pipeline.packets import FramePacket
+from core.packets import FramePacket
 from stages.heightnet_model import HeightNetModel
 
 

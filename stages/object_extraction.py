@@ -36,9 +36,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from pipeline.config import GroundConfig, TrackingConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import Detection, FramePacket
+from core.config import GroundConfig, TrackingConfig
+from core.errors import ConfigError
+from core.packets import Detection, FramePacket
 from stages.association import Region, points_in_regions
 
 BACKGROUND_METHODS = ("mog2", "cnt", "knn", "gsoc", "none")

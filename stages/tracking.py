@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.config import TrackingConfig
-from pipeline.packets import Detection, FeatureMatches, FramePacket, Track
+from core.config import TrackingConfig
+from core.packets import Detection, FeatureMatches, FramePacket, Track
 from stages.association import Region, assign, direction_mismatch, feature_votes, iou_matrix
 from stages.kalman import FilterFactory, HeightFilter, MotionFilter, MotionSnapshot, StatureWindow
 from stages.merged_blobs import split_by_predictions

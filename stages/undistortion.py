@@ -14,8 +14,8 @@ import dataclasses
 import cv2
 import numpy as np
 
-from pipeline.errors import SourceError
-from pipeline.packets import CameraInfo, FramePacket
+from core.errors import SourceError
+from core.packets import CameraInfo, FramePacket
 
 
 class Undistorter:

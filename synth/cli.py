@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 TIMES = ("day", "low_sun", "dusk", "night")
 WEATHER = ("clear", "overcast", "fog", "rain")

@@ -125,7 +125,7 @@ def test_objects_too_small_to_be_required_give_no_occlusion_events():
 def test_true_heights_learn_no_network_scale():
     """True height maps are metric and exact: the geometry stage must not rescale them, nor doubt
     their scale, and the height filter gives them no per-object bias (the model's keep theirs)."""
-    from pipeline.config import Config
+    from core.config import Config
     from pipeline.eval_tracks import build_eval_stages
 
     stages = dict(build_eval_stages(object(), Config(), "oracle", geometry=True))

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import CameraConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import CameraInfo
+from core.config import CameraConfig
+from core.errors import ConfigError
+from core.packets import CameraInfo
 from stages.calibration import (ASSUMED_CAMERA_HEIGHT_M, angles_from_rotation, camera_centre, camera_for_run,
                                 camera_from_pose, heights_from_foot_top, horizon_line, intrinsics_from_fov,
                                 is_calibrated, load_calibration, pixel_to_ground, project_points,

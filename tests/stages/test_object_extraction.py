@@ -7,9 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from pipeline.config import GroundConfig, TrackingConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import CameraInfo, Detection, Frame, FramePacket
+from core.config import GroundConfig, TrackingConfig
+from core.errors import ConfigError
+from core.packets import CameraInfo, Detection, Frame, FramePacket
 from stages.object_extraction import (ObjectExtractor, coarse_class, fit_box_to_ends, foreground_ends,
                                       moving_beyond_ends, seen_outline)
 
@@ -351,7 +351,7 @@ def test_two_walkers_side_by_side_are_two_detections():
 
 def test_height_consistency_residual_raises_the_noise():
     """Points matched onto the person whose height changed between frames: trust this frame less."""
-    from pipeline.packets import FeatureMatches
+    from core.packets import FeatureMatches
 
     noises = {}
     for wobble in (0.0, 0.3):

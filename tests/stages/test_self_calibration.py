@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import CameraConfig, load_config
-from pipeline.packets import Detection, Frame, FramePacket, Track
+from core.config import CameraConfig, load_config
+from core.packets import Detection, Frame, FramePacket, Track
 from stages.calibration import (angles_from_rotation, camera_for_run, camera_from_pose, intrinsics_from_fov,
                                 is_calibrated, load_calibration, pixel_to_ground, project_points,
                                 undistort_pixels)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.config import TrackingConfig
-from pipeline.packets import CameraInfo, Detection, FeatureMatches, Frame, FramePacket
+from core.config import TrackingConfig
+from core.packets import CameraInfo, Detection, FeatureMatches, Frame, FramePacket
 from stages.association import assign, iou_matrix
 from stages.tracking import ObjectTracker, TrackingStage
 

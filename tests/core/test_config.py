@@ -3,8 +3,8 @@ import tomllib
 
 import pytest
 
-from pipeline.config import DEFAULT_CONFIG_PATH, Config, load_config, parse_override
-from pipeline.errors import ConfigError
+from core.config import DEFAULT_CONFIG_PATH, Config, load_config, parse_override
+from core.errors import ConfigError
 
 
 def test_config_toml_documents_exactly_the_defaults():
