@@ -63,14 +63,13 @@ def main(argv: list[str] | None = None) -> int:
 def _vehicles(sequence, every: int):
     """(class, true height, box height on the true mask, matched detection or None, rgb, camera)."""
     from core.config import load_config
-    from pipeline.eval_tracks import build_eval_stages, matched_at_iou, prime_sequence_background, sequence_packets
+    from pipeline.eval_tracks import build_eval_chain, matched_at_iou, prime_sequence_background, sequence_packets
     from stages.vehicle_geometry import vehicle_box
 
     config = load_config(None)
-    stages = [(name, stage) for name, stage in build_eval_stages(sequence, config, "model", geometry=True)
-              if name != "tracking"]
-    prime_sequence_background(sequence, stages, config)
-    for truth_frame, packet in sequence_packets(sequence, stages):
+    chain = build_eval_chain(sequence, config, "model", geometry=True).without("tracking")
+    prime_sequence_background(sequence, chain, config)
+    for truth_frame, packet in sequence_packets(sequence, chain):
         index = packet.frame.index
         if index % every:
             continue

@@ -169,6 +169,9 @@ class OracleHeights:
         packet.ground_mask = truth.ground.astype(bool)
         return packet
 
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
+
 
 def camera_info(sequence):
     from core.packets import CameraInfo
@@ -179,50 +182,38 @@ def camera_info(sequence):
                       height_m=float(camera.height_m), source="calibration")
 
 
-def build_eval_stages(sequence, config: Config, heights: str, geometry: bool) -> list[tuple[str, object]]:
-    from stages.feature_matching import FeatureMatcher
-    from stages.object_extraction import ObjectExtractor
-    from stages.tracking import TrackingStage
+def build_eval_chain(sequence, config: Config, heights: str, geometry: bool):
+    """``heightpipe run``'s stages for a generator sequence (``pipeline.stage_chain``).
+
+    With ``heights="oracle"`` the true height and ground maps stand in for the network, and the
+    stages that correct the network's scale and bias are told there is none to correct.
+    """
+    from pipeline.stage_chain import build_stage_chain
 
     if heights == "oracle":
-        stages: list[tuple[str, object]] = [("heights", OracleHeights(sequence))]
-    else:
-        from stages.ground_segmentation import GroundSegmenter
-        from stages.height_inference import HeightEstimator
-        from stages.heightnet_model import HeightNetModel
-
-        model = HeightNetModel(config.height.model, config.height.threads)
-        stages = [("ground", GroundSegmenter(config.ground, model)), ("height", HeightEstimator(model))]
-    stages += [("matching", FeatureMatcher(config.matching, config.ground)),
-               ("objects", ObjectExtractor(config.tracking, config.ground))]
-    if geometry:
-        from stages.geometry import GeometryMeasurer
-
-        # True heights are metric: there is no network scale to learn (nor to doubt).
-        camera = replace(config.camera, rescale_network=False) if heights == "oracle" else config.camera
-        stages.append(("geometry", GeometryMeasurer(camera)))
-    # Nor does a true height map have a per-object bias for the height filter to learn.
-    tracking = replace(config.tracking, network_bias_share=0.0) if heights == "oracle" else config.tracking
-    stages.append(("tracking", TrackingStage(tracking)))
-    return stages
+        # True heights are metric: there is no network scale to learn (nor to doubt), nor a
+        # per-object bias for the height filter to learn.
+        config = replace(config, camera=replace(config.camera, rescale_network=False),
+                         tracking=replace(config.tracking, network_bias_share=0.0))
+    return build_stage_chain(config, camera_info(sequence),
+                             heights=OracleHeights(sequence) if heights == "oracle" else None,
+                             geometry=geometry)
 
 
-def prime_sequence_background(sequence, stages: list[tuple[str, object]], config: Config) -> None:
+def prime_sequence_background(sequence, chain, config: Config) -> None:
     """Seeds the object extractor's background model as ``heightpipe run`` does for files."""
     import cv2
 
-    from pipeline.runner import prime_background
     from stages.capture import background_indices
 
-    sample = [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
-              for i in background_indices(len(sequence), sequence.meta.fps,
-                                          config.tracking.background_prime_frames,
-                                          config.tracking.background_prime_s)]
-    prime_background([stage for _, stage in stages], sample)
+    chain.prime([cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
+                 for i in background_indices(len(sequence), sequence.meta.fps,
+                                             config.tracking.background_prime_frames,
+                                             config.tracking.background_prime_s)])
 
 
-def sequence_packets(sequence, stages: list[tuple[str, object]], max_frames: int = 0):
-    """Each frame of a generator sequence through ``stages``: yields (truth frame, packet).
+def sequence_packets(sequence, chain, max_frames: int = 0):
+    """Each frame of a generator sequence through the stage chain: yields (truth frame, packet).
 
     The stages are closed when the frames run out or the caller closes the generator.
     """
@@ -236,15 +227,9 @@ def sequence_packets(sequence, stages: list[tuple[str, object]], max_frames: int
         for index in range(count):
             truth_frame = sequence.frame(index)
             image = cv2.cvtColor(truth_frame.rgb, cv2.COLOR_RGB2BGR)
-            packet = FramePacket(frame=Frame(index, truth_frame.time_s, image), camera=camera)
-            for _, stage in stages:
-                packet = stage.process(packet)
-            yield truth_frame, packet
+            yield truth_frame, chain.process(FramePacket(frame=Frame(index, truth_frame.time_s, image), camera=camera))
     finally:
-        for _, stage in stages:
-            close = getattr(stage, "close", None)
-            if close is not None:
-                close()
+        chain.close()
 
 
 def run_sequence(sequence, config: Config, heights: str = "model", geometry: bool = True,
@@ -252,12 +237,12 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
     """Runs the tracking pipeline over one generator sequence and keeps what evaluation needs."""
     meta = sequence.meta
     run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
-    stages = build_eval_stages(sequence, config, heights, geometry)
-    prime_sequence_background(sequence, stages, config)
+    chain = build_eval_chain(sequence, config, heights, geometry)
+    prime_sequence_background(sequence, chain, config)
     sink = _open_recording(record, config, sequence.name) if record else None
     start = time.perf_counter()
     try:
-        with contextlib.closing(sequence_packets(sequence, stages, max_frames)) as packets:
+        with contextlib.closing(sequence_packets(sequence, chain, max_frames)) as packets:
             for _, packet in packets:
                 if sink is not None:
                     sink.write(packet)

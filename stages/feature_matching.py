@@ -82,6 +82,9 @@ class FeatureMatcher:
         self._prev_keypoints, self._prev_descriptors = self._detect(gray, above_ground)
         return packet
 
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
+
     def _match(self, gray: np.ndarray, above_ground: np.ndarray | None) -> FeatureMatches:
         prev = np.float32([kp.pt for kp in self._prev_keypoints]).reshape(-1, 1, 2)
         curr, status, _ = cv2.calcOpticalFlowPyrLK(self._prev_gray, gray, prev, None, **self.lk_params)

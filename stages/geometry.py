@@ -99,6 +99,9 @@ class GeometryMeasurer:
                 self.network_scale.rescale(packet.detections)
         return packet
 
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
+
     def measure(self, camera: CameraInfo, detections: list[Detection]) -> None:
         foot = np.array([d.foot_xy for d in detections], dtype=float)
         top = np.array([d.top_xy if d.top_xy is not None else (np.nan, np.nan) for d in detections])

@@ -32,3 +32,6 @@ class GroundSegmenter:
             metres = self.model.to_metres(output.height, packet.camera)
             packet.ground_mask = metres < self.config.height_threshold_m
         return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""

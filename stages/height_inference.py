@@ -24,3 +24,6 @@ class HeightEstimator:
             height[packet.ground_mask] = 0.0
         packet.height_map = height
         return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""

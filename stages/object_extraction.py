@@ -232,6 +232,14 @@ class ObjectExtractor:
         self._prev_height_map = packet.height_map
         return packet
 
+    def prime(self, images: list[np.ndarray]) -> list[np.ndarray]:
+        """Seed the background model from look-ahead frames (``prime_background``); pass them on."""
+        self.prime_background(images)
+        return images
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
+
     def prime_background(self, images: list[np.ndarray]) -> None:
         """Seed the background model with the per-pixel median of frames spread over the clip's start.
 

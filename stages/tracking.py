@@ -541,6 +541,9 @@ class TrackingStage:
                                             frame_interval_s=self._frame_interval(packet.frame.time_s))
         return packet
 
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
+
     def _frame_interval(self, time_s: float) -> float | None:
         """Median source time between the recent processed frames (stride included; None at first)."""
         if self._last_time_s is not None and time_s > self._last_time_s:

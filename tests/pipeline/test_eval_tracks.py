@@ -125,12 +125,19 @@ def test_objects_too_small_to_be_required_give_no_occlusion_events():
 def test_true_heights_learn_no_network_scale():
     """True height maps are metric and exact: the geometry stage must not rescale them, nor doubt
     their scale, and the height filter gives them no per-object bias (the model's keep theirs)."""
-    from core.config import Config
-    from pipeline.eval_tracks import build_eval_stages
+    from types import SimpleNamespace
 
-    stages = dict(build_eval_stages(object(), Config(), "oracle", geometry=True))
-    assert stages["geometry"].network_scale is None
-    assert stages["tracking"].tracker.config.network_bias_share == 0.0
+    from core.config import Config
+    from pipeline.eval_tracks import OracleHeights, build_eval_chain
+
+    camera = SimpleNamespace(width=320, height=240, K=np.diag([300.0, 300.0, 1.0]), R=np.eye(3),
+                             t=np.array([0.0, 0.0, 5.0]), height_m=5.0)
+    sequence = SimpleNamespace(meta=SimpleNamespace(camera=camera))
+    chain = build_eval_chain(sequence, Config(), "oracle", geometry=True)
+    assert [name for name, _ in chain.stages] == ["heights", "matching", "objects", "geometry", "tracking"]
+    assert isinstance(chain.stage("heights"), OracleHeights)
+    assert chain.stage("geometry").network_scale is None
+    assert chain.stage("tracking").tracker.config.network_bias_share == 0.0
     assert Config().tracking.network_bias_share > 0.0
 
 
