@@ -131,7 +131,8 @@ def _tile(rgb: np.ndarray, camera, detection, truth_m: float) -> np.ndarray:
     roof = half * CAR_ROOF_SHARE if fitted.length_m < CAR_MAX_LENGTH_M else half
 
     def outline(extent, z):
-        corners = [centre + a * extent[0] * along + b * extent[1] * across for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))]
+        corners = [centre + a * extent[0] * along + b * extent[1] * across
+                   for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))]
         return project_points(camera, np.column_stack([np.array(corners), np.full(4, z)]))
 
     # The footprint where its points were taken (BODY_CLEARANCE_M up), the roof at the box's height

@@ -19,6 +19,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace, config) -> int:
     import dataclasses
 
+    from core.extras import require
+
+    for module in ("torch", "matplotlib"):
+        require(module, "train", "heightpipe train")
     from heightnet.data import build_cache, dataset_hash
     from heightnet.train import train
     from core.errors import ConfigError

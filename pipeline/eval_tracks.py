@@ -83,6 +83,10 @@ def main(args: argparse.Namespace, config: Config) -> int:
             raise HeightpipeError(f"no such sequence in {root} ({args.split} split): {', '.join(sorted(missing))}")
     if not sequences:
         raise HeightpipeError(f"no {args.split} sequences in {root}")
+    if args.plot:
+        from core.extras import require
+
+        require("matplotlib", "synth", "eval-tracks --plot")
 
     runs = []
     start = time.perf_counter()

@@ -93,6 +93,9 @@ def options_from(args, config) -> tuple:
 
 
 def main(args, config) -> int:
+    from core.extras import require
+
+    require("mujoco", "synth", "heightpipe synth")
     options, sequences, workers, seed = options_from(args, config)
     if args.preview:
         from synth.preview import contact_sheet

@@ -262,7 +262,8 @@ def _add_random_movers(layout: Layout, camera: SynthCamera, rng: np.random.Gener
         lateral = float(rng.uniform(-route.width / 2, route.width / 2)) * 0.8
         for k in range(group):
             stature = _stature(rng)
-            offset = float(np.clip(lateral + (k - (group - 1) / 2) * 0.65, -route.width / 2 - 0.3, route.width / 2 + 0.3))
+            offset = float(np.clip(lateral + (k - (group - 1) / 2) * 0.65,
+                                   -route.width / 2 - 0.3, route.width / 2 + 0.3))
             movers.append(make_pedestrian(next_id, rng, stature, pts, offset,
                                           speed * (1.0 if group == 1 else 0.85), s0 + rng.uniform(-0.4, 0.4),
                                           yaw0=float(rng.uniform(-math.pi, math.pi))))

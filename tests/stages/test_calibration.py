@@ -132,10 +132,10 @@ def kitti_objects():
 
 def box_corners_world(obj) -> np.ndarray:
     """The 3D box's 8 corners in the kitti_camera world of the object's own ground."""
-    h, w, l = obj["hwl"]
+    h, w, length = obj["hwl"]
     x0, y0, z0 = obj["location"]
     c, s = math.cos(obj["ry"]), math.sin(obj["ry"])
-    xs = np.array([1, 1, -1, -1, 1, 1, -1, -1]) * l / 2
+    xs = np.array([1, 1, -1, -1, 1, 1, -1, -1]) * length / 2
     zs = np.array([1, -1, -1, 1, 1, -1, -1, 1]) * w / 2
     ys = np.array([0, 0, 0, 0, -1, -1, -1, -1]) * h
     cam = np.stack([c * xs + s * zs + x0, ys + y0, -s * xs + c * zs + z0], axis=1)

@@ -108,7 +108,8 @@ def test_upright_people_cue_estimates_the_focal_length():
     assert_within(result.height_m, 6.0, result.height_std_m, 3, 0.3)
     # Box-centre points carry no such cue: the focal length stays assumed.
     top[:, 0] = foot[:, 0]
-    boxes = self_calibrate(foot, top, ids, 1280, 720, true_K, settings=FitSettings(bootstrap=5, use_lean=True, point_noise_px=1.5))
+    boxes = self_calibrate(foot, top, ids, 1280, 720, true_K,
+                           settings=FitSettings(bootstrap=5, use_lean=True, point_noise_px=1.5))
     assert boxes.focal_source == "assumed"
 
 

@@ -452,7 +452,7 @@ def test_a_coasting_track_does_not_take_a_box_half_its_size():
     tracker = ObjectTracker(TrackingConfig(min_hits=1))
     cut = dict(height_m=float("nan"), noise_m=float("inf"), w=30, h=90)   # top cut: no height
     for frame in range(10):
-        tracks = tracker.update([_detection(100, 0, **cut)])
+        tracker.update([_detection(100, 0, **cut)])
     for frame in range(4):
         tracker.update([])
     legs = _detection(100, 60, 0.87, w=30, h=42)           # overlaps the lower third of the box
