@@ -63,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
 def _vehicles(sequence, every: int):
     """(class, true height, box height on the true mask, matched detection or None, rgb, camera)."""
     from core.config import load_config
-    from pipeline.eval_tracks import build_eval_chain, matched_at_iou, prime_sequence_background, sequence_packets
+    from pipeline.eval_metrics import matched_at_iou
+    from pipeline.eval_sequences import build_eval_chain, prime_sequence_background, sequence_packets
     from stages.vehicle_geometry import vehicle_box
 
     config = load_config(None)
