@@ -61,8 +61,8 @@ def main(args: argparse.Namespace, config) -> int:
     except HeightpipeError:
         source.close()
         raise
-    chain.prime(source.background_sample(config.tracking.background_prime_frames,
-                                         config.tracking.background_prime_s))
+    chain.prime(source.background_sample(config.objects.background_prime_frames,
+                                         config.objects.background_prime_s))
     collector = HeadFootCollector(width, height)
     progress = tqdm(total=source.stats.expected, unit="frame", disable=args.no_progress or not config.output.progress,
                     desc="collecting people", dynamic_ncols=True, file=sys.stderr)

@@ -117,8 +117,8 @@ def prime_sequence_background(sequence, chain, config: Config) -> None:
 
     chain.prime([cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
                  for i in background_indices(len(sequence), sequence.meta.fps,
-                                             config.tracking.background_prime_frames,
-                                             config.tracking.background_prime_s)])
+                                             config.objects.background_prime_frames,
+                                             config.objects.background_prime_s)])
 
 
 def sequence_packets(sequence, chain, max_frames: int = 0):

@@ -185,8 +185,8 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     summary.camera_source = camera.source
     try:
         chain = build_stage_chain(config, camera)
-        chain.prime(source.background_sample(config.tracking.background_prime_frames,
-                                             config.tracking.background_prime_s))
+        chain.prime(source.background_sample(config.objects.background_prime_frames,
+                                             config.objects.background_prime_s))
         sinks = build_sinks(outputs, config, prefix.name)
     except BaseException:
         source.close()

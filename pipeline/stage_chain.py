@@ -98,7 +98,7 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
     stages += height_stages
     stages += [
         ("matching", FeatureMatcher(config.matching, config.ground)),
-        ("objects", ObjectExtractor(config.tracking, config.ground)),
+        ("objects", ObjectExtractor(config.objects, config.ground)),
     ]
     if geometry and is_calibrated(camera):
         from stages.geometry import GeometryMeasurer

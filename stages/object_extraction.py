@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from core.config import GroundConfig, TrackingConfig
+from core.config import GroundConfig, ObjectsConfig
 from core.errors import ConfigError
 from core.packets import Detection, FramePacket
 from stages.association import Region, points_in_regions
@@ -126,7 +126,7 @@ def make_background_subtractor(method: str):
         return cv2.bgsegm.createBackgroundSubtractorGSOC()
     if method == "none":
         return None
-    raise ConfigError(f"tracking.background must be one of {', '.join(BACKGROUND_METHODS)}, "
+    raise ConfigError(f"objects.background must be one of {', '.join(BACKGROUND_METHODS)}, "
                       f"got {method!r}")
 
 
@@ -159,14 +159,14 @@ class ObjectExtractor:
 
     Parameters
     ----------
-    config : TrackingConfig
-        ``background``, ``work_width``, ``min_area_px``, ``min_object_height_m``,
-        ``height_percentile`` and ``height_measurement_noise_m`` are used.
+    config : ObjectsConfig
+        The ``[objects]`` section (all of it but ``background_prime_*``, which say which frames
+        ``prime`` is given).
     ground : GroundConfig
         ``height_threshold_m``: pixels lower than this are ground, not object.
     """
 
-    def __init__(self, config: TrackingConfig, ground: GroundConfig):
+    def __init__(self, config: ObjectsConfig, ground: GroundConfig):
         self.config = config
         self._reference: np.ndarray | None = None
         self.height_threshold_m = ground.height_threshold_m

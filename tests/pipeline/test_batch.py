@@ -301,6 +301,9 @@ def test_what_a_rerun_redoes(tmp_path):
     changed = Config()
     changed.tracking.min_hits = 4
     assert reason("/a.mp4", fp=config_fingerprint(changed)) == "config changed"
+    changed = Config()
+    changed.objects.min_area_px = 80
+    assert reason("/a.mp4", fp=config_fingerprint(changed)) == "config changed"
     threads_only = Config()
     threads_only.height.threads, threads_only.output.progress = 1, False
     assert reason("/a.mp4", fp=config_fingerprint(threads_only)) is None

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from core.config import GroundConfig, TrackingConfig
+from core.config import GroundConfig, ObjectsConfig
 from core.errors import ConfigError
 from core.packets import CameraInfo, Detection, Frame, FramePacket
 from stages.object_extraction import (ObjectExtractor, coarse_class, fit_box_to_ends, foreground_ends,
@@ -61,7 +61,7 @@ def _walk(frames: int, start_x: int = 100, speed: int = 6, height_m: float = 1.7
 
 
 def test_moving_person_becomes_one_detection_with_its_height():
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     packet = _run(extractor, _walk(15))
     assert len(packet.detections) == 1          # the static building is not an object
     detection = packet.detections[0]
@@ -82,21 +82,21 @@ def test_moving_person_becomes_one_detection_with_its_height():
 
 def test_an_object_reaching_the_bottom_edge_has_its_foot_cut():
     walker_at_bottom = [[]] * 5 + [[(100 + 6 * i, HEIGHT - 100, 40, 100, 1.75)] for i in range(10)]
-    detection = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walker_at_bottom).detections[0]
+    detection = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), walker_at_bottom).detections[0]
     assert detection.touches_border and detection.foot_cut and not detection.top_cut
     assert np.isfinite(detection.height_noise_m)     # the network still sees its top
 
 
 def test_an_object_reaching_the_top_edge_has_no_usable_height():
     walker_at_top = [[]] * 5 + [[(100 + 6 * i, 0, 40, 100, 1.75)] for i in range(10)]
-    detection = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walker_at_top).detections[0]
+    detection = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), walker_at_top).detections[0]
     assert detection.top_cut and not detection.foot_cut and detection.height_noise_m == np.inf
 
 
 def test_a_walker_whose_height_map_ends_below_the_frame_top_has_no_usable_height():
     """The network called the upper body ground (Oxford: a white shirt at the frame's top): the
     blob is legs only, but the moving region goes on up to the edge, so its top is no head."""
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     walk = [[]] * 5 + [[(100 + 6 * i, 0, 40, 120, 1.75)] for i in range(10)]
     for index, people in enumerate(walk):
         image, heights, ground = _scene(index, people)
@@ -162,7 +162,7 @@ def test_the_black_border_of_an_undistorted_frame_cuts_like_the_frame_edge():
     valid = np.ones((HEIGHT, WIDTH), bool)
     valid[260:, :300] = False                        # the black region: below row 260, left of column 300
     walk = _walk(10, start_x=100, speed=6)           # feet at row 270, x 100..194: inside the black region
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     for index, people in enumerate(walk):
         image, heights, ground = _scene(index, people)
         packet = _packet(index, image, heights, ground)
@@ -171,7 +171,7 @@ def test_the_black_border_of_an_undistorted_frame_cuts_like_the_frame_edge():
     cut = packet.detections[0]
     assert cut.foot_cut and cut.touches_border
     # The same walk with the whole frame valid: nothing is cut.
-    whole = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walk).detections[0]
+    whole = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), walk).detections[0]
     assert not (whole.foot_cut or whole.top_cut or whole.touches_border)
 
 
@@ -197,15 +197,15 @@ def test_a_primed_background_leaves_no_ghost_where_someone_stood_at_the_start():
                     found.append((index, d.box))
         return found
 
-    assert ghosts(ObjectExtractor(TrackingConfig(), GroundConfig()))
-    primed = ObjectExtractor(TrackingConfig(), GroundConfig())
+    assert ghosts(ObjectExtractor(ObjectsConfig(), GroundConfig()))
+    primed = ObjectExtractor(ObjectsConfig(), GroundConfig())
     primed.prime_background([frame(index)[0] for index in range(0, 30, 3)])
     assert ghosts(primed) == []
 
 
 def test_a_blob_whose_bottom_stands_above_the_ground_has_no_foot():
     """Only a head and shoulders moved (the legs are hidden): its lowest point is not a foot."""
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     frames = [[(100 + 6 * i, 150, 40, 120, 1.75)] for i in range(12)]
     for index, people in enumerate(frames):
         image, heights, ground = _scene(index, people)
@@ -218,14 +218,14 @@ def test_a_blob_whose_bottom_stands_above_the_ground_has_no_foot():
 
 def test_two_people_apart_are_two_detections():
     frames = [[(60 + 5 * i, 150, 40, 120, 1.6), (400 - 5 * i, 180, 40, 110, 1.9)] for i in range(12)]
-    packet = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), frames)
+    packet = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), frames)
     heights = sorted(d.height_m for d in packet.detections)
     assert heights == pytest.approx([1.6, 1.9], abs=0.06)
 
 
 def test_moving_ground_level_change_is_not_an_object():
     """A shadow or light patch moves (foreground) but stays on the ground (height 0)."""
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     for index in range(12):
         image, heights, ground = _scene(index, [], building=False)
         image[200:260, 50 + 10 * index:130 + 10 * index] = 20
@@ -234,32 +234,32 @@ def test_moving_ground_level_change_is_not_an_object():
 
 
 def test_without_height_map_foreground_alone_gives_detections_without_height():
-    packet = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), _walk(12), with_height=False)
+    packet = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), _walk(12), with_height=False)
     assert len(packet.detections) == 1
     assert np.isnan(packet.detections[0].height_m)
     assert packet.detections[0].cls == "other"
 
 
 def test_background_none_uses_the_height_map_alone():
-    extractor = ObjectExtractor(TrackingConfig(background="none"), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(background="none"), GroundConfig())
     image, heights, ground = _scene(0, [(100, 150, 40, 120, 1.75)])
     packet = extractor.process(_packet(0, image, heights, ground))
     # The static 8 m building is above ground but taller than any mover: scenery, not an object.
     assert [round(d.height_m, 1) for d in packet.detections] == [1.8]
     assert packet.foreground is None
-    with_building = ObjectExtractor(TrackingConfig(background="none", max_object_height_m=10), GroundConfig())
+    with_building = ObjectExtractor(ObjectsConfig(background="none", max_object_height_m=10), GroundConfig())
     assert len(with_building.process(_packet(0, image, heights, ground)).detections) == 2
 
 
 @pytest.mark.parametrize("method", ["mog2", "cnt", "knn", "gsoc"])
 def test_every_background_method_finds_the_walker(method):
-    packet = _run(ObjectExtractor(TrackingConfig(background=method), GroundConfig()), _walk(15))
+    packet = _run(ObjectExtractor(ObjectsConfig(background=method), GroundConfig()), _walk(15))
     assert len(packet.detections) == 1
 
 
 def test_unknown_background_method_is_a_config_error():
-    with pytest.raises(ConfigError, match="tracking.background"):
-        ObjectExtractor(TrackingConfig(background="magic"), GroundConfig())
+    with pytest.raises(ConfigError, match="objects.background"):
+        ObjectExtractor(ObjectsConfig(background="magic"), GroundConfig())
 
 
 def test_coarse_classes():
@@ -271,7 +271,7 @@ def test_coarse_classes():
 
 
 def test_costs_a_few_milliseconds_at_640x360():
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     scenes = [_scene(i, people) for i, people in enumerate(_walk(30))]
     elapsed = []
     for index, (image, heights, ground) in enumerate(scenes):
@@ -337,7 +337,7 @@ def test_two_walkers_side_by_side_are_two_detections():
     """A smooth height map (like the network's) shows one hump; the foreground shows two people."""
     import cv2
 
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     frames = [[]] * 5 + [[(100 + 5 * i, 150, 40, 120, 1.7), (146 + 5 * i, 150, 40, 120, 1.7)]
                          for i in range(8)]
     for index, people in enumerate(frames):
@@ -355,7 +355,7 @@ def test_height_consistency_residual_raises_the_noise():
 
     noises = {}
     for wobble in (0.0, 0.3):
-        extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+        extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
         for index, people in enumerate(_walk(12)):
             image, heights, ground = _scene(index, people)
             if people and index % 2:
@@ -372,7 +372,7 @@ def test_height_consistency_residual_raises_the_noise():
 
 def test_a_global_brightness_jump_is_not_foreground():
     """Auto exposure brightening the whole view (a bus fills half of it) must not flag every pixel."""
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     frames = _walk(20)
     for index, people in enumerate(frames):
         image, heights, ground = _scene(index, people, rng=np.random.default_rng(index))
@@ -444,7 +444,7 @@ def _run_blurred(extractor, frames):
 
 def test_a_group_walking_shoulder_to_shoulder_is_one_detection_per_person():
     frames = [[]] * 5 + [_group(100 + 5 * i, 150) for i in range(8)]
-    packet = _run_blurred(ObjectExtractor(TrackingConfig(), GroundConfig()), frames)
+    packet = _run_blurred(ObjectExtractor(ObjectsConfig(), GroundConfig()), frames)
     lefts = sorted(d.box[0] for d in packet.detections)
     assert len(lefts) == 3
     assert lefts[1:] == pytest.approx([135 + 40 + 7, 135 + 80 + 7], abs=10)   # cut at the shoulders' middle
@@ -454,7 +454,7 @@ def test_a_group_at_the_frame_top_stays_whole():
     """Where the frame's edge may cut a blob its outline is no row of heads (a truck's roof under
     rain streaks at a 3.5 m camera's top edge was split in three)."""
     frames = [[]] * 5 + [_group(100 + 5 * i, 0) for i in range(8)]
-    packet = _run_blurred(ObjectExtractor(TrackingConfig(), GroundConfig()), frames)
+    packet = _run_blurred(ObjectExtractor(ObjectsConfig(), GroundConfig()), frames)
     assert len(packet.detections) == 1
 
 
@@ -462,7 +462,7 @@ def test_the_foreground_does_not_depend_on_what_ran_before_in_the_process():
     """KNN samples with OpenCV's process-wide random generator; eval-tracks runs many sequences
     in one process and their results depended on the order."""
     def noisy_run(people_per_frame):
-        extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+        extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
         for index, people in enumerate(people_per_frame):
             image, heights, ground = _scene(index, people)
             noise = np.random.default_rng(index).normal(0, 12, image.shape)     # sensor noise
@@ -485,7 +485,7 @@ def test_a_noisy_night_camera_is_denoised_and_its_walker_stays_one_detection():
 
     assert not ObjectExtractor._noisy([clean])
     assert ObjectExtractor._noisy([noisy(clean), noisy(clean)])
-    config = TrackingConfig(work_width=0)
+    config = ObjectsConfig(work_width=0)
     extractor = ObjectExtractor(config, GroundConfig())
     extractor.prime_background([noisy(clean) for _ in range(5)])
     assert extractor._denoise
