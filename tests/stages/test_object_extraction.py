@@ -10,8 +10,8 @@ import pytest
 from core.config import GroundConfig, ObjectsConfig
 from core.errors import ConfigError
 from core.packets import CameraInfo, Detection, Frame, FramePacket
-from stages.object_extraction import (ObjectExtractor, coarse_class, fit_box_to_ends, foreground_ends,
-                                      moving_beyond_ends, seen_outline)
+from stages.object_extraction import ObjectExtractor
+from stages.object_measurements import coarse_class, fit_box_to_ends, foreground_ends, moving_beyond_ends, seen_outline
 
 WIDTH, HEIGHT = 640, 360
 
@@ -283,7 +283,7 @@ def test_costs_a_few_milliseconds_at_640x360():
 
 
 def test_merged_blob_splits_at_separate_height_peaks():
-    from stages.object_extraction import split_by_height_peaks
+    from stages.blob_splitting import split_by_height_peaks
 
     blob = np.zeros((60, 50), bool)
     blob[:, 5:45] = True                                   # one foreground blob, two people wide
@@ -301,7 +301,7 @@ def test_merged_blob_splits_at_separate_height_peaks():
 
 def test_people_side_by_side_split_on_their_foreground():
     """The grown blob bridges the gap between two walkers; their own foreground does not."""
-    from stages.object_extraction import split_by_foreground
+    from stages.blob_splitting import split_by_foreground
 
     blob = np.zeros((60, 50), bool)
     blob[:, 3:47] = True
@@ -318,7 +318,7 @@ def test_people_side_by_side_split_on_their_foreground():
 
 
 def test_one_persons_stacked_fragments_and_a_car_stay_whole():
-    from stages.object_extraction import split_by_foreground
+    from stages.blob_splitting import split_by_foreground
 
     blob = np.ones((60, 20), bool)
     coat_missed = np.zeros_like(blob)
@@ -392,7 +392,7 @@ def _person_shape(h: int = 24, w: int = 8) -> np.ndarray:
 
 
 def test_a_group_walking_shoulder_to_shoulder_splits_at_its_heads():
-    from stages.object_extraction import split_by_heads
+    from stages.blob_splitting import split_by_heads
 
     group = np.hstack([_person_shape(), _person_shape(), _person_shape()])
     pieces = split_by_heads(group, group, min_area=20)
@@ -400,7 +400,7 @@ def test_a_group_walking_shoulder_to_shoulder_splits_at_its_heads():
 
 
 def test_a_car_a_lone_walker_and_a_low_dip_stay_whole():
-    from stages.object_extraction import split_by_heads
+    from stages.blob_splitting import split_by_heads
 
     car = np.zeros((14, 30), bool)
     car[6:, :], car[:6, 8:22] = True, True                     # a cabin: one flat peak
@@ -413,7 +413,7 @@ def test_a_car_a_lone_walker_and_a_low_dip_stay_whole():
 
 
 def test_sensor_noise_specks_are_dropped_but_thin_legs_stay():
-    from stages.object_extraction import drop_small_pieces
+    from stages.background_model import drop_small_pieces
 
     mask = np.zeros((40, 40), bool)
     mask[5:25, 10:16] = True                                   # a body ...
