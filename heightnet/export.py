@@ -1,4 +1,4 @@
-"""Checkpoint -> ONNX file that meets notes_for_helpers/MODEL_CONTRACT.md, checked against PyTorch."""
+"""Checkpoint -> ONNX file that meets the run-time contract (``stages/heightnet_model.py``), checked against PyTorch."""
 
 from __future__ import annotations
 
