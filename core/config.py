@@ -1,7 +1,7 @@
 """All configuration in one typed place.
 
 Each section of ``config.toml`` is a dataclass below; the dataclass defaults are the
-documented defaults (``tests/pipeline/test_config.py`` checks that ``config.toml`` agrees).
+documented defaults (``tests/core/test_config.py`` checks that ``config.toml`` agrees).
 Values come from, in increasing priority: these defaults, a TOML file, ``--set
 section.key=value`` overrides and the dedicated command-line flags.
 
