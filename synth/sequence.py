@@ -24,6 +24,7 @@ from synth.movers import Mover, make_cyclist, make_pedestrian, make_vehicle
 from synth.scene import LAYOUT_FAMILIES, Layout, Route, build_layout, car_colour
 from synth.weather import Environment, sample_environment
 
+
 def derive_seed(*parts) -> int:
     """A stable 31-bit seed from any mix of ints and strings (independent of PYTHONHASHSEED)."""
     digest = hashlib.sha256(repr(parts).encode()).digest()
