@@ -1,0 +1,252 @@
+"""HeightNet v2 training data: generator frames -> a decoded cache -> pairs with exact targets.
+
+The cache (``<data>/.contact_cache/<sequence>/``) holds, per sequence, the frames at their
+rendered resolution: RGB, the exact ground-contact offsets (``stages/ground_contact.py``, from the
+generator's depth and camera), the height map, the semantic classes, the mover instances, the
+feature matches between consecutive frames (for the height-consistency loss) and the camera.
+
+A sample is a pair (t-1, t) of one camera's frames with the same window, flip and colour
+jitter. The window is either the whole frame squashed to the input size (what the run-time
+stage feeds the network) or, with probability ``crop_probability``, a native-resolution window
+around a random mover: at 320x240 a person far from a 9 m camera is 10-20 px tall, and native
+crops of a 640x480 render show the network people at twice that size. Every target is
+transformed with the window — offsets scaled per axis and mirrored, the camera's K moved — so
+the closed-form decode stays exact on the crop. Camera-head targets are given on whole frames
+only: a crop's camera has an off-centre principal point the heads are not asked to know.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
+from heightnet.data import apply_colour, colour_jitter, match_features, Augmentation
+from heightnet.normalisation import normalise
+
+CACHE_VERSION = 1
+# Classes scored apart in the evaluation: trucks and buses hide their contact points.
+CLASS_GROUPS = {"pedestrian": "person", "cyclist": "cyclist", "car": "car/van", "van": "car/van",
+                "truck": "truck/bus", "bus": "truck/bus"}
+
+
+@dataclass
+class ContactSequence:
+    """One sequence's cached arrays (memory-mapped) and camera."""
+
+    name: str
+    camera: PinholeCamera
+    rgb: np.ndarray          # T x H x W x 3 uint8
+    offsets: np.ndarray      # T x H x W x 2 float16, pixels; NaN = undefined (sky)
+    height_m: np.ndarray     # T x H x W float16, NaN = sky
+    semantic: np.ndarray     # T x H x W uint8 (synth CLASS_NAMES)
+    ground: np.ndarray       # T x H x W uint8 (0/1)
+    instance: np.ndarray     # T x H x W uint16, 0 = no mover
+    match_offsets: np.ndarray
+    match_points: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.rgb)
+
+    def matches(self, t: int) -> np.ndarray:
+        return self.match_points[self.match_offsets[t]:self.match_offsets[t + 1]]
+
+
+def build_contact_cache(sequences: Sequence[Any], cache_dir: Path, progress: bool = False
+                        ) -> list[ContactSequence]:
+    """Decode every frame once (reused when present) and load the cache memory-mapped."""
+    from tqdm import tqdm
+
+    cache_dir = Path(cache_dir)
+    cached = []
+    for seq in tqdm(sequences, desc="cache", disable=not progress, dynamic_ncols=True):
+        folder = cache_dir / seq.name
+        done = folder / "done.json"
+        stamp = {"version": CACHE_VERSION, "frames": len(seq)}
+        if not (done.is_file() and json.loads(done.read_text()) == stamp):
+            _write_sequence(seq, folder)
+            done.write_text(json.dumps(stamp))
+        cached.append(load_contact_sequence(folder))
+    return cached
+
+
+def synth_pinhole(camera: Any) -> PinholeCamera:
+    return PinholeCamera(np.asarray(camera.K, np.float64), np.asarray(camera.R, np.float64),
+                         np.asarray(camera.position, np.float64))
+
+
+def _write_sequence(seq: Any, folder: Path) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    camera = synth_pinhole(seq.meta.camera)
+    frames = [seq.frame(i) for i in range(len(seq))]
+    np.save(folder / "rgb.npy", np.stack([f.rgb for f in frames]))
+    np.save(folder / "offsets.npy",
+            np.stack([contact_offsets(camera, f.height_m, f.ground) for f in frames]).astype(np.float16))
+    np.save(folder / "height_m.npy", np.stack([f.height_m for f in frames]).astype(np.float16))
+    np.save(folder / "semantic.npy", np.stack([f.semantic for f in frames]).astype(np.uint8))
+    np.save(folder / "ground.npy", np.stack([f.ground for f in frames]).astype(np.uint8))
+    np.save(folder / "instance.npy", np.stack([f.instance for f in frames]).astype(np.uint16))
+    offsets, points = [0, 0], []
+    for t in range(1, len(frames)):
+        m = match_features(frames[t - 1].rgb, frames[t].rgb, frames[t - 1].instance, frames[t].instance)
+        points.append(m)
+        offsets.append(offsets[-1] + len(m))
+    np.save(folder / "match_offsets.npy", np.asarray(offsets[:len(frames) + 1], np.int64))
+    np.save(folder / "match_points.npy",
+            np.concatenate(points) if points else np.zeros((0, 4), np.float32))
+    (folder / "meta.json").write_text(json.dumps({
+        "name": seq.name, "K": camera.K.tolist(), "R": camera.R.tolist(), "C": camera.C.tolist()}))
+
+
+def load_contact_sequence(folder: Path) -> ContactSequence:
+    meta = json.loads((folder / "meta.json").read_text())
+
+    def load(name: str) -> np.ndarray:
+        return np.load(folder / f"{name}.npy", mmap_mode="r")
+
+    camera = PinholeCamera(np.array(meta["K"]), np.array(meta["R"]), np.array(meta["C"]))
+    return ContactSequence(meta["name"], camera, load("rgb"), load("offsets"), load("height_m"),
+                           load("semantic"), load("ground"), load("instance"), np.load(folder / "match_offsets.npy"),
+                           np.load(folder / "match_points.npy"))
+
+
+# ----------------------------------------------------------------------------- camera channels
+
+def camera_channels(camera: PinholeCamera, width: int, height: int) -> np.ndarray:
+    """CAM-Conv style input channels (2 x H x W): the tangent of each ray's depression below the
+    horizon, and its horizontal direction relative to the optical axis (tangent)."""
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays = world_rays(camera, np.stack([u, v], -1))
+    horizontal = np.sqrt(rays[..., 0] ** 2 + rays[..., 1] ** 2) + 1e-9
+    depression = -rays[..., 2] / horizontal
+    lateral = (u - camera.K[0, 2]) / camera.K[0, 0]
+    return np.stack([depression, lateral]).astype(np.float32)
+
+
+def camera_targets(camera: PinholeCamera, image_height: int) -> np.ndarray:
+    """Pitch, roll (radians) and log of the vertical focal length in image heights."""
+    pitch, roll = angles_of(camera)
+    return np.array([pitch, roll, math.log(abs(camera.K[1, 1]) / image_height)], np.float32)
+
+
+# ----------------------------------------------------------------------------- samples
+
+@dataclass
+class ContactSampling:
+    """How training windows are drawn (``crop_probability`` 0 = whole frames only)."""
+
+    crop_probability: float = 0.0
+    crop_jitter: float = 0.25          # window centre moves by up to this share of its size
+    flip: bool = True
+    colour: bool = True
+    camera_channels: bool = False
+
+
+class ContactPairDataset:
+    """Pairs (t-1, t); a map dataset of NumPy arrays (see ``__getitem__`` for the keys)."""
+
+    def __init__(self, sequences: Sequence[ContactSequence], input_width: int, input_height: int,
+                 sampling: ContactSampling, max_matches: int = 64, seed: int = 0,
+                 augment: bool = True):
+        self.sequences = list(sequences)
+        self.index = [(s, t) for s, seq in enumerate(self.sequences) for t in range(1, len(seq))]
+        if not self.index:
+            raise ValueError("training data has no sequence with two or more frames")
+        self.size = (input_width, input_height)
+        self.sampling = sampling
+        self.max_matches = max_matches
+        self.seed = seed
+        self.augment = augment
+        self.epoch = 0
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def window(self, rng: np.random.Generator, seq: ContactSequence, t: int) -> tuple[int, int, int, int, bool]:
+        """x0, y0, w, h of the window and whether it is a native-resolution crop."""
+        _, height, width, _ = seq.rgb.shape
+        W, H = self.size
+        if self.augment and rng.random() < self.sampling.crop_probability and width >= W and height >= H:
+            ids = np.unique(np.asarray(seq.instance[t]))
+            ids = ids[ids > 0]
+            if len(ids):
+                ys, xs = np.nonzero(np.asarray(seq.instance[t]) == rng.choice(ids))
+                jitter = self.sampling.crop_jitter
+                cx = xs.mean() + rng.uniform(-jitter, jitter) * W
+                cy = ys.mean() + rng.uniform(-jitter, jitter) * H
+                x0 = int(np.clip(round(cx - W / 2), 0, width - W))
+                y0 = int(np.clip(round(cy - H / 2), 0, height - H))
+                return x0, y0, W, H, True
+        return 0, 0, width, height, False
+
+    def __getitem__(self, item: int) -> dict[str, Any]:
+        """image 2x3xHxW, offsets 2x2xHxW (NaN = no label), height 2x1xHxW metres (NaN = no
+        label), ground 2x1xHxW, instance 2x1xHxW int64, K/R (3x3) and C (3) of the window's
+        camera, camera_target (3) with camera_valid, matches Kx4 with match_valid, and
+        camera_channels 2x2xHxW when enabled."""
+        s, t = self.index[item]
+        seq = self.sequences[s]
+        rng = np.random.default_rng([self.seed, self.epoch, item])
+        x0, y0, w, h, cropped = self.window(rng, seq, t)
+        flip = bool(self.augment and self.sampling.flip and rng.random() < 0.5)
+        colour = colour_jitter(rng, Augmentation()) if self.augment and self.sampling.colour else None
+        W, H = self.size
+        sx, sy = W / w, H / h
+        camera = seq.camera.window(x0, y0, w, h, W, H, flip)
+        images, offsets, heights, grounds, instances = [], [], [], [], []
+        for frame in (t - 1, t):
+            win = (slice(y0, y0 + h), slice(x0, x0 + w))
+            rgb = cv2.resize(np.asarray(seq.rgb[frame][win]), (W, H), interpolation=cv2.INTER_AREA)
+            off = _nearest(np.asarray(seq.offsets[frame][win], np.float32), W, H) * np.float32([sx, sy])
+            hgt = _nearest(np.asarray(seq.height_m[frame][win], np.float32), W, H)
+            gnd = _nearest(np.asarray(seq.ground[frame][win]), W, H)
+            ins = _nearest(np.asarray(seq.instance[frame][win]), W, H)
+            if flip:
+                rgb, off, hgt, gnd, ins = (a[:, ::-1] for a in (rgb, off, hgt, gnd, ins))
+                off = off * np.float32([-1, 1])
+            if colour is not None:
+                rgb = apply_colour(rgb, colour)
+            images.append(normalise(rgb))
+            offsets.append(np.ascontiguousarray(off.transpose(2, 0, 1)))
+            heights.append(hgt[None].astype(np.float32))
+            grounds.append(gnd[None].astype(np.float32))
+            instances.append(ins[None].astype(np.int64))
+        matches = _window_matches(seq.matches(t), x0, y0, sx, sy, W, H, flip)
+        if len(matches) > self.max_matches:
+            matches = matches[rng.choice(len(matches), self.max_matches, replace=False)]
+        padded = np.zeros((self.max_matches, 4), np.float32)
+        padded[:len(matches)] = matches
+        valid = np.zeros(self.max_matches, bool)
+        valid[:len(matches)] = True
+        sample = {"image": np.stack(images), "offsets": np.stack(offsets), "height": np.stack(heights),
+                  "ground": np.stack(grounds), "instance": np.stack(instances),
+                  "K": camera.K.astype(np.float32), "R": camera.R.astype(np.float32),
+                  "C": camera.C.astype(np.float32), "camera_target": camera_targets(camera, H),
+                  "camera_valid": np.bool_(not cropped), "matches": padded, "match_valid": valid}
+        if self.sampling.camera_channels:
+            sample["camera_channels"] = np.stack([camera_channels(camera, W, H)] * 2)
+        return sample
+
+
+def _window_matches(matches: np.ndarray, x0: int, y0: int, sx: float, sy: float, W: int, H: int,
+                    flip: bool) -> np.ndarray:
+    m = matches.copy()
+    m[:, [0, 2]] = (m[:, [0, 2]] + 0.5 - x0) * sx - 0.5
+    m[:, [1, 3]] = (m[:, [1, 3]] + 0.5 - y0) * sy - 0.5
+    if flip:
+        m[:, [0, 2]] = W - 1 - m[:, [0, 2]]
+    inside = ((m[:, [0, 2]] >= 0) & (m[:, [0, 2]] <= W - 1)).all(1) & \
+             ((m[:, [1, 3]] >= 0) & (m[:, [1, 3]] <= H - 1)).all(1)
+    return m[inside]
+
+
+def _nearest(array: np.ndarray, width: int, height: int) -> np.ndarray:
+    if array.shape[1] == width and array.shape[0] == height:
+        return array
+    return cv2.resize(array, (width, height), interpolation=cv2.INTER_NEAREST_EXACT)

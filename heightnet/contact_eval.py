@@ -1,0 +1,152 @@
+"""Held-out scores of a HeightNet v2 network, as the issue states them.
+
+On each held-out frame (whole frame, the run-time input) heights are decoded twice: with the
+true camera, and with only the true camera *height* — pitch, roll and focal length from the
+camera heads, averaged over the sequence's frames as a fixed camera would be.
+
+* object-top error: per mover with at least ``min_pixels`` input pixels, the 98th percentile of
+  the decoded heights on its (true) pixels against its highest true height; median |error| per
+  class group (people, cyclists, cars/vans, trucks/buses);
+* mover-pixel RMSE (true height > 0.1 m on a mover) per camera-height row, with and without
+  trucks and buses;
+* the camera heads' median pitch error (degrees) and focal-length error (per cent).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import cv2
+import numpy as np
+import torch
+
+from stages.ground_contact import PinholeCamera, camera_from_angles, heights_from_offsets
+from heightnet.contact_data import CLASS_GROUPS, ContactSequence, camera_channels, camera_targets
+from heightnet.normalisation import normalise
+from synth.dataset import CLASS_NAMES
+
+GROUPS = ("person", "cyclist", "car/van", "truck/bus")
+BIG = "truck/bus"
+
+
+@dataclass
+class Scores:
+    top_error_cm: dict[str, float] = field(default_factory=dict)        # true camera
+    top_error_heads_cm: dict[str, float] = field(default_factory=dict)  # camera height only
+    objects: dict[str, int] = field(default_factory=dict)
+    rmse_cm: dict[str, float] = field(default_factory=dict)             # per row, no trucks/buses
+    rmse_all_cm: dict[str, float] = field(default_factory=dict)         # per row, every mover
+    rmse_heads_cm: dict[str, float] = field(default_factory=dict)
+    pitch_error_deg: float = float("nan")
+    focal_error_pct: float = float("nan")
+    roll_error_deg: float = float("nan")
+
+
+def predict(net: torch.nn.Module, rgb: np.ndarray, width: int, height: int,
+            camera: PinholeCamera | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets H x W x 2 (input pixels) and camera-head outputs (6) for one whole frame."""
+    image = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
+    x = torch.from_numpy(normalise(image))[None]
+    channels = None
+    if getattr(net, "arch", None) is not None and net.arch.camera_channels:
+        channels = torch.from_numpy(camera_channels(camera, width, height))[None]
+    with torch.no_grad():
+        offsets, _, cam = net(x, channels)
+    return offsets[0].permute(1, 2, 0).numpy(), cam[0].numpy()
+
+
+def heads_camera(camera_outputs: np.ndarray, width: int, height: int, source_size: tuple[int, int],
+                 camera_height_m: float) -> PinholeCamera:
+    """The camera the heads describe, at the input size, for a frame squashed from source_size."""
+    pitch, roll, log_focal = (float(v) for v in camera_outputs[:3])
+    src_w, src_h = source_size
+    aspect = (width / src_w) / (height / src_h)
+    return camera_from_angles(width, height, camera_height_m, pitch, roll, math.exp(log_focal) * height, aspect)
+
+
+def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: int, height: int,
+             min_pixels: int = 20, frames: int = 2) -> Scores:
+    was_training = net.training
+    net.eval()
+    tops: dict[str, list[float]] = defaultdict(list)
+    tops_heads: dict[str, list[float]] = defaultdict(list)
+    sq: dict[str, list[np.ndarray]] = defaultdict(list)
+    sq_all: dict[str, list[np.ndarray]] = defaultdict(list)
+    sq_heads: dict[str, list[np.ndarray]] = defaultdict(list)
+    pitch_err, focal_err, roll_err = [], [], []
+    for seq in sequences:
+        _, src_h, src_w, _ = seq.rgb.shape
+        true_camera = seq.camera.window(0, 0, src_w, src_h, width, height)
+        row = f"{seq.camera.height_m * 100:.0f}"
+        used = range(min(frames, len(seq)))
+        outputs = [predict(net, np.asarray(seq.rgb[t]), width, height, true_camera) for t in used]
+        mean_camera = np.mean([cam for _, cam in outputs], axis=0)
+        head_camera = heads_camera(mean_camera, width, height, (src_w, src_h), seq.camera.height_m)
+        truth_cam = camera_targets(true_camera, height)
+        pitch_err.append(abs(math.degrees(mean_camera[0] - truth_cam[0])))
+        roll_err.append(abs(math.degrees(mean_camera[1] - truth_cam[1])))
+        focal_err.append(abs(math.exp(mean_camera[2] - truth_cam[2]) - 1) * 100)
+        for t, (offsets, _) in zip(used, outputs):
+            truth = cv2.resize(np.asarray(seq.height_m[t], np.float32), (width, height),
+                               interpolation=cv2.INTER_NEAREST_EXACT)
+            instance = cv2.resize(np.asarray(seq.instance[t]), (width, height),
+                                  interpolation=cv2.INTER_NEAREST_EXACT)
+            semantic = cv2.resize(np.asarray(seq.semantic[t]), (width, height),
+                                  interpolation=cv2.INTER_NEAREST_EXACT)
+            pred = heights_from_offsets(true_camera, offsets)
+            pred_heads = heights_from_offsets(head_camera, offsets)
+            mover = (instance > 0) & np.isfinite(truth) & (truth > 0.1)
+            big = np.zeros_like(mover)
+            for obj in np.unique(instance[instance > 0]):
+                pixels = (instance == obj) & np.isfinite(truth)
+                cls = CLASS_NAMES[np.bincount(semantic[pixels]).argmax()] if pixels.any() else ""
+                group = CLASS_GROUPS.get(cls)
+                if group is None:
+                    continue
+                if group == BIG:
+                    big |= pixels
+                if pixels.sum() < min_pixels:
+                    continue
+                top = float(truth[pixels].max())
+                tops[group].append(abs(float(np.percentile(pred[pixels], 98)) - top))
+                tops_heads[group].append(abs(float(np.percentile(pred_heads[pixels], 98)) - top))
+            sq_all[row].append((pred - truth)[mover] ** 2)
+            sq[row].append((pred - truth)[mover & ~big] ** 2)
+            sq_heads[row].append((pred_heads - truth)[mover & ~big] ** 2)
+    net.train(was_training)
+    scores = Scores()
+    for group in GROUPS:
+        if tops[group]:
+            scores.top_error_cm[group] = float(np.median(tops[group]) * 100)
+            scores.top_error_heads_cm[group] = float(np.median(tops_heads[group]) * 100)
+            scores.objects[group] = len(tops[group])
+    for source, dest in ((sq, scores.rmse_cm), (sq_all, scores.rmse_all_cm), (sq_heads, scores.rmse_heads_cm)):
+        for row in sorted(source, key=float):
+            values = np.concatenate(source[row])
+            dest[row] = float(np.sqrt(values.mean()) * 100) if len(values) else float("nan")
+        values = np.concatenate([np.concatenate(v) for v in source.values()]) if source else np.zeros(0)
+        dest["all"] = float(np.sqrt(values.mean()) * 100) if len(values) else float("nan")
+    scores.pitch_error_deg = float(np.median(pitch_err))
+    scores.roll_error_deg = float(np.median(roll_err))
+    scores.focal_error_pct = float(np.median(focal_err))
+    return scores
+
+
+def scores_row(scores: Scores) -> dict[str, float]:
+    """A flat dict for CSV logs and tables."""
+    row: dict[str, float] = {}
+    for group in GROUPS:
+        key = group.replace("/", "_")
+        row[f"top_{key}_cm"] = scores.top_error_cm.get(group, float("nan"))
+        row[f"top_heads_{key}_cm"] = scores.top_error_heads_cm.get(group, float("nan"))
+    row["rmse_cm"] = scores.rmse_cm.get("all", float("nan"))
+    row["rmse_all_cm"] = scores.rmse_all_cm.get("all", float("nan"))
+    row["rmse_heads_cm"] = scores.rmse_heads_cm.get("all", float("nan"))
+    row["rmse_worst_row_cm"] = max((v for k, v in scores.rmse_cm.items() if k != "all"), default=float("nan"))
+    row["pitch_error_deg"] = scores.pitch_error_deg
+    row["roll_error_deg"] = scores.roll_error_deg
+    row["focal_error_pct"] = scores.focal_error_pct
+    return row

@@ -1,0 +1,80 @@
+"""HeightNet v2 state -> ONNX file, checked against PyTorch.
+
+The graph ends at what the network knows: ``offsets`` (1 x 2 x H x W, input pixels to each
+pixel's ground-contact point), ``ground_logit`` (1 x 1 x H x W) and ``camera`` (1 x 6: pitch,
+roll, log vertical focal length in image heights, then their log-variances). Metres need the
+camera and come from the closed form in ``stages/ground_contact.py`` at run time. The metadata says
+so (``heightpipe.output_units = ground_contact_offsets``) beside the usual input contract.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from heightnet.contact_model import CAMERA_OUTPUTS, ContactNet
+from heightnet.contact_train import load_network
+from heightnet.normalisation import MEAN, STD
+
+OPSET = 17
+OUTPUT_UNITS = "ground_contact_offsets"
+
+
+def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int) -> dict[str, str]:
+    return {
+        "heightpipe.format_version": "2",
+        "heightpipe.input_width": str(width),
+        "heightpipe.input_height": str(height),
+        "heightpipe.mean": json.dumps(list(MEAN)),
+        "heightpipe.std": json.dumps(list(STD)),
+        "heightpipe.color_order": "RGB",
+        "heightpipe.output_units": OUTPUT_UNITS,
+        "heightpipe.outputs": json.dumps({
+            "offsets": "du, dv in input pixels from each pixel to the image of its ground-contact point",
+            "ground_logit": "ground-plane logit",
+            "camera": [*CAMERA_OUTPUTS, *(f"log_var_{name}" for name in CAMERA_OUTPUTS)]}),
+        "heightpipe.architecture": json.dumps(net.arch.to_dict()),
+        "heightpipe.trained_images": str(images_seen),
+        "heightpipe.created": datetime.date.today().isoformat(),
+    }
+
+
+def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict[str, float]:
+    """Export a training state; returns the size and ORT-vs-PyTorch differences per output."""
+    import onnx
+    import onnxruntime as ort
+
+    state = torch.load(state_path, map_location="cpu", weights_only=False)
+    net = load_network(state_path)
+    if net.arch.camera_channels:
+        raise ValueError("a network with camera-channel inputs needs the camera before it runs; "
+                         "export supports RGB-only networks")
+    width, height = state["input_size"]
+    example = torch.randn(1, 3, height, width, generator=torch.Generator().manual_seed(0))
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp.onnx")
+    torch.onnx.export(net, (example,), str(tmp), input_names=["image"],
+                      output_names=["offsets", "ground_logit", "camera"], opset_version=OPSET,
+                      do_constant_folding=True, dynamo=False)
+    model = onnx.load(str(tmp))
+    del model.metadata_props[:]
+    for key, value in contact_metadata(net, width, height, int(state["images"])).items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.checker.check_model(model)
+    onnx.save(model, str(out))
+    tmp.unlink()
+    with torch.no_grad():
+        expected = [t.numpy() for t in net(example)]
+    session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    got = session.run(["offsets", "ground_logit", "camera"], {"image": example.numpy()})
+    diffs = {name: float(np.abs(a - b).max()) for name, a, b in
+             zip(("offsets", "ground_logit", "camera"), got, expected)}
+    if max(diffs.values()) > tolerance:
+        raise ValueError(f"ONNX Runtime differs from PyTorch by {max(diffs.values()):.2e} in {out}")
+    return {"size_bytes": out.stat().st_size, **diffs}

@@ -1,0 +1,128 @@
+"""HeightNet v2 losses: offsets, metric height, the paper's two losses, ground and camera.
+
+Every pixel term is averaged per object where objects matter: a far person of 40 pixels must
+count for more than its pixel share next to a bus of 4,000, so mover pixels are weighted by
+1/sqrt(pixels of their object) (each object then weighs sqrt of its size, not its size).
+
+    total = offsets(movers, per object) + offset_all * offsets(every labelled pixel)
+          + height * metric height(movers, decoded with the true camera, per object)
+          + si * scale-invariant log loss (paper Eq. 1) on decoded mover heights
+          + consistency * paper Eq. 2 on decoded heights at matched points of frames t-1, t
+          + ground * BCE(ground plane) + camera * Gaussian NLL of the camera heads (whole frames)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from stages.ground_contact import torch_heights_from_offsets
+from heightnet.losses import sample_at
+
+ABOVE_GROUND_M = 0.1
+# Huber transition points: offsets in input pixels, heights in metres.
+OFFSET_DELTA_PX = 1.0
+HEIGHT_DELTA_M = 0.05
+LOG_OFFSET_M = 0.05
+# The camera heads' log-variance is kept above this so that one easy image cannot claim
+# certainty (and an infinite weight).
+MIN_LOG_VARIANCE = -12.0
+
+
+@dataclass
+class ContactLossWeights:
+    offset_all: float = 0.3
+    height: float = 10.0
+    si: float = 1.0
+    consistency: float = 1.0
+    ground: float = 0.2
+    camera: float = 0.1
+
+
+def object_weights(instance: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Per-pixel weight 1/sqrt(pixels of its object) on ``mask``, 0 elsewhere (N x 1 x H x W)."""
+    weights = torch.zeros_like(mask, dtype=torch.float32)
+    for i in range(instance.shape[0]):
+        ids = instance[i][mask[i]]
+        if ids.numel() == 0:
+            continue
+        counts = torch.bincount(ids).float()
+        weights[i][mask[i]] = counts[ids].rsqrt()
+    return weights
+
+
+def weighted_mean(values: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    total = weights.sum()
+    if total <= 0:
+        return values.sum() * 0.0
+    return (values * weights).sum() / total
+
+
+def contact_loss(offsets: torch.Tensor, ground_logit: torch.Tensor, camera: torch.Tensor,
+                 batch: dict[str, torch.Tensor], weights: ContactLossWeights) -> dict[str, torch.Tensor]:
+    """All terms for B pairs (network outputs 2B x ..., frames t-1, t interleaved)."""
+    target = batch["offsets"].flatten(0, 1)
+    height_true = batch["height"].flatten(0, 1)
+    labelled = torch.isfinite(target[:, :1]) & torch.isfinite(height_true)
+    instance = batch["instance"].flatten(0, 1)
+    movers = labelled & (instance > 0) & (height_true > ABOVE_GROUND_M)
+    per_object = object_weights(instance, movers)
+    target = torch.nan_to_num(target)
+    height_true = torch.nan_to_num(height_true)
+
+    offset_error = F.huber_loss(offsets, target, reduction="none", delta=OFFSET_DELTA_PX).sum(1, keepdim=True)
+    losses = {"offset": weighted_mean(offset_error, per_object),
+              "offset_all": weighted_mean(offset_error, labelled.float())}
+
+    K, R, C = (batch[k].repeat_interleave(2, 0) for k in ("K", "R", "C"))
+    height = torch_heights_from_offsets(offsets, K, R, C)
+    losses["height"] = weighted_mean(F.huber_loss(height, height_true, reduction="none",
+                                                  delta=HEIGHT_DELTA_M), per_object)
+    log_error = torch.log(height.clamp(min=0) + LOG_OFFSET_M) - torch.log(height_true + LOG_OFFSET_M)
+    losses["si"] = scale_invariant(log_error, movers)
+    losses["consistency"] = consistency(height, batch["matches"], batch["match_valid"])
+    ground = batch["ground"].flatten(0, 1)
+    bce = F.binary_cross_entropy_with_logits(ground_logit, ground, reduction="none")
+    losses["ground"] = weighted_mean(bce, labelled.float())
+    losses["camera"] = camera_nll(camera, batch["camera_target"].repeat_interleave(2, 0),
+                                  batch["camera_valid"].repeat_interleave(2, 0))
+    losses["total"] = (losses["offset"] + weights.offset_all * losses["offset_all"]
+                       + weights.height * losses["height"] + weights.si * losses["si"]
+                       + weights.consistency * losses["consistency"] + weights.ground * losses["ground"]
+                       + weights.camera * losses["camera"])
+    losses["decoded"] = height.detach()
+    losses["movers"] = movers
+    return losses
+
+
+def scale_invariant(log_error: torch.Tensor, mask: torch.Tensor, lam: float = 0.85) -> torch.Tensor:
+    """Eigen et al.'s loss (the paper's Eq. 1) per image, averaged over images with pixels."""
+    d = (log_error * mask).flatten(1)
+    n = mask.flatten(1).sum(1)
+    has = n > 0
+    if not has.any():
+        return log_error.sum() * 0.0
+    mean_sq = (d[has] ** 2).sum(1) / n[has]
+    mean = d[has].sum(1) / n[has]
+    return torch.sqrt((mean_sq - lam * mean ** 2).clamp(min=1e-8)).mean()
+
+
+def consistency(height: torch.Tensor, matches: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """The paper's Eq. 2 on decoded metres: squared height change of matched points, t-1 -> t."""
+    if not valid.any():
+        return height.sum() * 0.0
+    h0 = sample_at(height[0::2], matches[..., :2])
+    h1 = sample_at(height[1::2], matches[..., 2:])
+    return ((h1 - h0) ** 2)[valid].mean()
+
+
+def camera_nll(camera: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """Gaussian negative log-likelihood with a predicted log-variance per camera quantity."""
+    if not valid.any():
+        return camera.sum() * 0.0
+    n = target.shape[1]
+    mean, log_var = camera[:, :n], camera[:, n:].clamp(min=MIN_LOG_VARIANCE)
+    nll = 0.5 * (torch.exp(-log_var) * (mean - target) ** 2 + log_var)
+    return nll[valid].mean()

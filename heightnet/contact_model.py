@@ -1,0 +1,125 @@
+"""HeightNet v2: a small UNet that predicts ground-contact offsets, the ground, and the camera.
+
+Outputs for an input of W x H (both multiples of 32):
+
+* ``offsets`` B x 2 x H x W: (du, dv) in input pixels to each pixel's ground-contact point
+  (``stages/ground_contact.py``), predicted at half resolution and upsampled — a full-resolution
+  head costs more on a CPU than any encoder layer for almost no parameters;
+* ``ground_logit`` B x 1 x H x W: the ground plane (the paper's segmentation stage);
+* ``camera`` B x 6: pitch (rad), roll (rad), log of the vertical focal length in image heights,
+  then the log-variance of each (the heads' own uncertainty), from pooled deepest features:
+  image-level camera regression as in Hold-Geoffroy et al. (CVPR 2018), for users who know only
+  the mounting height.
+
+Two trunks of equal width, chosen by measurement (``heightnet/README.md``): ``plain`` (3x3
+convolution, BatchNorm, ReLU, twice per level) and ``depthwise`` (MobileNetV2 inverted
+residuals, as the v1 light model). ``camera_channels`` > 0 adds per-pixel camera-embedding
+input channels (CAM-Convs, Facil et al. CVPR 2019), computed from a known camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+# Offsets are regressed divided by this (pixels): targets run from 0 to a few hundred pixels,
+# and unit-scale outputs train better than raw pixel values.
+OFFSET_SCALE = 16.0
+DEPTHWISE_EXPAND = 3.35
+CAMERA_OUTPUTS = ("pitch_rad", "roll_rad", "log_focal_y")
+
+
+@dataclass(frozen=True)
+class ContactArchitecture:
+    trunk: str = "plain"                       # "plain" or "depthwise"
+    widths: tuple[int, ...] = (16, 32, 64, 128)  # encoder at 1/2, 1/4, 1/8, 1/16
+    camera_channels: int = 0                   # CAM-Conv input channels (0 = RGB only)
+
+    def to_dict(self) -> dict:
+        return {"trunk": self.trunk, "widths": list(self.widths), "camera_channels": self.camera_channels}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ContactArchitecture":
+        return cls(d["trunk"], tuple(d["widths"]), int(d["camera_channels"]))
+
+
+def conv_bn_relu(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout),
+                         nn.ReLU(inplace=True))
+
+
+class InvertedResidual(nn.Module):
+    """MobileNetV2 block: 1x1 expand, 3x3 depthwise, 1x1 project (residual when shapes match)."""
+
+    def __init__(self, cin: int, cout: int, stride: int = 1, expand: float = 4.0):
+        super().__init__()
+        mid = int(round(cin * expand))
+        self.body = nn.Sequential(
+            nn.Conv2d(cin, mid, 1, bias=False), nn.BatchNorm2d(mid), nn.ReLU6(inplace=True),
+            nn.Conv2d(mid, mid, 3, stride, 1, groups=mid, bias=False), nn.BatchNorm2d(mid),
+            nn.ReLU6(inplace=True),
+            nn.Conv2d(mid, cout, 1, bias=False), nn.BatchNorm2d(cout))
+        self.residual = stride == 1 and cin == cout
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.body(x)
+        return x + y if self.residual else y
+
+
+def level(trunk: str, cin: int, cout: int, stride: int) -> nn.Sequential:
+    if trunk == "plain":
+        return nn.Sequential(conv_bn_relu(cin, cout, stride), conv_bn_relu(cout, cout))
+    if trunk == "depthwise":
+        # Expanded so that the parameter count is within a few per cent of the plain trunk's.
+        return nn.Sequential(InvertedResidual(cin, cout, stride, DEPTHWISE_EXPAND),
+                             InvertedResidual(cout, cout, 1, DEPTHWISE_EXPAND))
+    raise ValueError(f"unknown trunk {trunk!r} (known: plain, depthwise)")
+
+
+class ContactNet(nn.Module):
+    """Encoder to 1/16, decoder with skips back to 1/2, heads at 1/2, camera from the bottleneck."""
+
+    def __init__(self, arch: ContactArchitecture = ContactArchitecture()):
+        super().__init__()
+        self.arch = arch
+        w = arch.widths
+        cin = 3 + arch.camera_channels
+        strides = (2, 2, 2, 2)
+        self.encoder = nn.ModuleList()
+        prev = cin
+        for width, stride in zip(w, strides):
+            self.encoder.append(level(arch.trunk, prev, width, stride))
+            prev = width
+        self.decoder = nn.ModuleList()
+        for i in range(len(w) - 1, 0, -1):   # 1/16 -> 1/8 -> 1/4 -> 1/2
+            self.decoder.append(level(arch.trunk, w[i] + w[i - 1], w[i - 1], 1))
+        self.offset_head = nn.Conv2d(w[0], 2, 3, padding=1)
+        self.ground_head = nn.Conv2d(w[0], 1, 3, padding=1)
+        self.camera_head = nn.Sequential(nn.Linear(2 * w[-1], 64), nn.ReLU(inplace=True),
+                                         nn.Linear(64, 2 * len(CAMERA_OUTPUTS)))
+        nn.init.zeros_(self.offset_head.weight)
+        nn.init.zeros_(self.offset_head.bias)
+
+    def forward(self, image: torch.Tensor, camera_channels: torch.Tensor | None = None):
+        x = image if camera_channels is None else torch.cat([image, camera_channels], 1)
+        skips = []
+        for block in self.encoder:
+            x = block(x)
+            skips.append(x)
+        pooled = torch.cat([x.mean((2, 3)), x.amax((2, 3))], 1)
+        camera = self.camera_head(pooled)
+        for block, skip in zip(self.decoder, reversed(skips[:-1])):
+            x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            x = block(torch.cat([x, skip], 1))
+        size = image.shape[-2:]
+        offsets = F.interpolate(self.offset_head(x) * (2 * OFFSET_SCALE), size=size, mode="bilinear",
+                                align_corners=False)
+        ground = F.interpolate(self.ground_head(x), size=size, mode="bilinear", align_corners=False)
+        return offsets, ground, camera
+
+
+def count_parameters(net: nn.Module) -> int:
+    return sum(p.numel() for p in net.parameters())

@@ -1,0 +1,233 @@
+"""HeightNet v2 training: resumable from a small committed state, logged, evaluated as it goes.
+
+A 2-core CPU supplies training volume only if training accumulates over working days, and the
+machine is not kept between them. So the run folder is meant to live in git:
+
+* ``checkpoint.pt`` — the weights (float32) and AdamW's moments (stored as float16, restored
+  to float32: a few MB for a 0.5 M-parameter network), the step, images seen, the data order;
+* ``log.csv`` — training losses every ``log_every`` steps;
+* ``curve.csv`` — held-out scores (``heightnet/contact_eval.py``) every ``eval_every`` steps,
+  against images seen: the learning curve.
+
+``resume=True`` continues from ``checkpoint.pt`` with the same data order (a function of seed
+and epoch) and learning rate (a function of the step), so nothing else must survive.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from heightnet.contact_data import ContactPairDataset, ContactSampling, ContactSequence
+from heightnet.contact_eval import evaluate, scores_row
+from heightnet.contact_losses import ContactLossWeights, contact_loss
+from heightnet.contact_model import ContactArchitecture, ContactNet
+
+LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "ground", "camera",
+               "mover_rmse_cm"]
+WARMUP_STEPS = 200
+
+
+@dataclass
+class ContactTrainConfig:
+    out: str = "runs/contact"
+    seed: int = 0
+    input_width: int = 320
+    input_height: int = 240
+    steps: int = 2000
+    batch_size: int = 4               # pairs of consecutive frames per step (8 images)
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    threads: int = 2
+    trunk: str = "plain"
+    widths: tuple[int, ...] = (16, 32, 64, 128)
+    camera_channels: bool = False
+    crop_probability: float = 0.0
+    max_matches: int = 64
+    checkpoint_every: int = 200
+    log_every: int = 20
+    eval_every: int = 600
+    loss: ContactLossWeights = field(default_factory=ContactLossWeights)
+
+    def architecture(self) -> ContactArchitecture:
+        return ContactArchitecture(self.trunk, tuple(self.widths), 2 if self.camera_channels else 0)
+
+
+def learning_rate(step: int, config: ContactTrainConfig) -> float:
+    """Linear warm-up, then constant: an open-ended run that accumulates over days has no end
+    to decay towards (lower ``lr`` in the config when the curve flattens)."""
+    return config.lr * min(1.0, (step + 1) / WARMUP_STEPS)
+
+
+def train_contact(config: ContactTrainConfig, sequences: Sequence[ContactSequence],
+                  held_out: Sequence[ContactSequence] = (), resume: bool = False,
+                  progress: bool = True, max_steps: int | None = None) -> dict[str, Any]:
+    """Train until ``config.steps`` (``max_steps``: at most this many in this call)."""
+    from tqdm import tqdm
+
+    torch.set_num_threads(max(1, config.threads))
+    run_dir = Path(config.out)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    checkpoint_path = run_dir / "checkpoint.pt"
+    torch.manual_seed(config.seed)
+    net = ContactNet(config.architecture())
+    optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    step, images = 0, 0
+    if checkpoint_path.is_file():
+        if not resume:
+            raise FileExistsError(f"{checkpoint_path} exists: resume it or choose another output folder")
+        step, images = load_state(checkpoint_path, net, optimiser, config)
+    (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
+
+    sampling = ContactSampling(crop_probability=config.crop_probability,
+                               camera_channels=config.camera_channels)
+    dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
+                                 config.max_matches, config.seed)
+    per_epoch = max(1, len(dataset) // config.batch_size)
+    end = config.steps if max_steps is None else min(config.steps, step + max_steps)
+    log = _CsvLog(run_dir / "log.csv", ["step", "images", "lr", *LOSS_FIELDS, "images_per_s"])
+    curve = _CsvLog(run_dir / "curve.csv", None)
+    net.train()
+    sums: dict[str, float] = {}
+    counted, tick, tick_images = 0, time.time(), 0
+    bar = tqdm(total=end, initial=step, desc="train v2", disable=not progress, dynamic_ncols=True)
+    try:
+        while step < end:
+            epoch, position = divmod(step, per_epoch)
+            dataset.epoch = epoch
+            order = np.random.default_rng([config.seed, epoch, 7]).permutation(len(dataset))
+            items = order[position * config.batch_size:(position + 1) * config.batch_size]
+            batch = collate([dataset[int(i)] for i in items])
+            for group in optimiser.param_groups:
+                group["lr"] = learning_rate(step, config)
+            channels = batch["camera_channels"].flatten(0, 1) if "camera_channels" in batch else None
+            offsets, ground, camera = net(batch["image"].flatten(0, 1), channels)
+            losses = contact_loss(offsets, ground, camera, batch, config.loss)
+            optimiser.zero_grad(set_to_none=True)
+            losses["total"].backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
+            optimiser.step()
+            step += 1
+            images += 2 * len(items)
+            tick_images += 2 * len(items)
+            values = {k: float(losses[k].detach()) for k in LOSS_FIELDS[:-1]}
+            values["mover_rmse_cm"] = _mover_rmse_cm(losses, batch)
+            for k, v in values.items():
+                if math.isfinite(v):
+                    sums[k] = sums.get(k, 0.0) + v
+            counted += 1
+            bar.update(1)
+            bar.set_postfix(loss=f"{values['total']:.2f}", rmse_cm=f"{values['mover_rmse_cm']:.0f}")
+            if step % config.log_every == 0 or step == end:
+                rate = tick_images / max(1e-9, time.time() - tick)
+                log.write({"step": step, "images": images, "lr": f"{learning_rate(step - 1, config):.3g}",
+                           **{k: f"{sums.get(k, float('nan')) / max(1, counted):.5f}" for k in LOSS_FIELDS},
+                           "images_per_s": f"{rate:.2f}"})
+                sums, counted, tick, tick_images = {}, 0, time.time(), 0
+            if held_out and (step % config.eval_every == 0 or step == end):
+                scores = evaluate(net, held_out, config.input_width, config.input_height)
+                curve.write({"step": step, "images": images,
+                             **{k: f"{v:.2f}" for k, v in scores_row(scores).items()}})
+                tick = time.time()   # evaluation time is not training throughput
+            if step % config.checkpoint_every == 0 or step == end:
+                save_state(checkpoint_path, net, optimiser, step, images, config)
+    finally:
+        bar.close()
+        log.close()
+        curve.close()
+    return {"step": step, "images": images, "net": net}
+
+
+def save_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer, step: int,
+               images: int, config: ContactTrainConfig) -> None:
+    """Atomically write the compact state: weights in float32, Adam moments in float16."""
+    opt = optimiser.state_dict()
+    # state_dict() hands out the live per-parameter dicts: build new ones, never edit those.
+    opt["state"] = {index: {key: _compact(key, value) for key, value in state.items()}
+                    for index, state in opt["state"].items()}
+    tmp = path.with_suffix(".tmp")
+    torch.save({"model": net.state_dict(), "optimiser": opt, "step": step, "images": images,
+                "architecture": net.arch.to_dict(), "input_size": [config.input_width, config.input_height],
+                "config": dataclasses.asdict(config)}, tmp)
+    tmp.replace(path)
+
+
+def _compact(key: str, value: Any) -> Any:
+    if key == "exp_avg":
+        return value.to(torch.float16)
+    if key == "exp_avg_sq":   # stored as its square root: tiny second moments stay representable
+        return value.sqrt().to(torch.float16)
+    return value
+
+
+def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer | None,
+               config: ContactTrainConfig | None = None) -> tuple[int, int]:
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    if config is not None:
+        if state["architecture"] != config.architecture().to_dict() or \
+                state["input_size"] != [config.input_width, config.input_height]:
+            raise ValueError(f"cannot resume {path}: it holds {state['architecture']} at "
+                             f"{state['input_size']}, the config asks for {config.architecture().to_dict()} "
+                             f"at {[config.input_width, config.input_height]}")
+    net.load_state_dict(state["model"])
+    if optimiser is not None:
+        opt = state["optimiser"]
+        for s in opt["state"].values():
+            if "exp_avg" in s:
+                s["exp_avg"] = s["exp_avg"].float()
+            if "exp_avg_sq" in s:
+                s["exp_avg_sq"] = s["exp_avg_sq"].float() ** 2
+        optimiser.load_state_dict(opt)
+    return int(state["step"]), int(state["images"])
+
+
+def load_network(path: Path) -> ContactNet:
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    net = ContactNet(ContactArchitecture.from_dict(state["architecture"]))
+    net.load_state_dict(state["model"])
+    net.eval()
+    return net
+
+
+def collate(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
+    return {k: torch.from_numpy(np.stack([item[k] for item in items])) for k in items[0]}
+
+
+def _mover_rmse_cm(losses: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]) -> float:
+    """Decoded-height RMSE on this batch's mover pixels (training progress, not an evaluation)."""
+    movers = losses["movers"]
+    if not movers.any():
+        return float("nan")
+    truth = torch.nan_to_num(batch["height"].flatten(0, 1))
+    return float(((losses["decoded"] - truth)[movers] ** 2).mean().sqrt() * 100)
+
+
+class _CsvLog:
+    """Append-only CSV whose header is taken from the first row written (or given)."""
+
+    def __init__(self, path: Path, fields: list[str] | None):
+        self.path, self.fields = path, fields
+        self.file = None
+
+    def write(self, row: dict[str, Any]) -> None:
+        if self.file is None:
+            fresh = not self.path.is_file() or self.path.stat().st_size == 0
+            self.file = self.path.open("a", newline="")
+            self.writer = csv.DictWriter(self.file, self.fields or list(row))
+            if fresh:
+                self.writer.writeheader()
+        self.writer.writerow(row)
+        self.file.flush()
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.close()

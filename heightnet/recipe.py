@@ -1,0 +1,93 @@
+"""The HeightNet v2 recipe experiment: arms trained on one fixed data set, same steps, same seed.
+
+    python -m heightnet.recipe cache --train DIR --test DIR [--sequences N]
+    python -m heightnet.recipe run ARM --train DIR --test DIR [--sequences N] [--steps S] [--out DIR]
+    python -m heightnet.recipe table [--out DIR]
+
+Arms differ from ``base`` (plain 3x3 trunk, whole frames, RGB only) in one thing each:
+``depthwise`` (MobileNetV2 inverted residuals, parameter count within 0.1 %), ``crops``
+(half the samples native-resolution windows around a mover), ``camconv`` (two CAM-Conv camera
+channels at the input). Each arm's ``curve.csv`` holds the held-out scores at every
+``eval_every`` steps; ``table`` prints them side by side with each arm's training images/s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from pathlib import Path
+
+ARMS = {
+    "base": {},
+    "depthwise": {"trunk": "depthwise"},
+    "crops": {"crop_probability": 0.5},
+    "camconv": {"camera_channels": True},
+}
+COLUMNS = [("top_person_cm", "people"), ("top_cyclist_cm", "cyclists"), ("top_car_van_cm", "cars/vans"),
+           ("top_truck_bus_cm", "trucks/buses"), ("rmse_cm", "mover RMSE w/o trucks"),
+           ("rmse_worst_row_cm", "worst row"), ("top_heads_person_cm", "people, heads"),
+           ("pitch_error_deg", "pitch err deg"), ("focal_error_pct", "focal err %")]
+
+
+def load(root: str, sequences: int | None, split: str):
+    from synth.dataset import list_sequences
+
+    from heightnet.contact_data import build_contact_cache
+
+    seqs = list_sequences(root, split=split)
+    if not seqs:
+        sys.exit(f"error: no {split}-split sequences in {root}")
+    seqs = sorted(seqs, key=lambda s: s.name)[:sequences]
+    return build_contact_cache(seqs, Path(root) / ".contact_cache", progress=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m heightnet.recipe", description=__doc__.split("\n")[0])
+    parser.add_argument("command", choices=["cache", "run", "table"])
+    parser.add_argument("arm", nargs="?", choices=list(ARMS))
+    parser.add_argument("--train", default="data/v2_train")
+    parser.add_argument("--test", default="data/v2_test")
+    parser.add_argument("--sequences", type=int, default=600, help="train sequences used (first N by name)")
+    parser.add_argument("--test-sequences", type=int, default=50, help="held-out sequences (first N by name)")
+    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--eval-every", type=int, default=250)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", default="runs/recipe")
+    args = parser.parse_args(argv)
+    if args.command == "table":
+        print_table(Path(args.out))
+        return 0
+    train = load(args.train, args.sequences, "train")
+    test = load(args.test, args.test_sequences, "test")
+    if args.command == "cache":
+        print(f"{len(train)} train, {len(test)} test sequences cached")
+        return 0
+    if args.arm is None:
+        parser.error("run needs an ARM")
+    from heightnet.contact_train import ContactTrainConfig, train_contact
+
+    config = ContactTrainConfig(out=str(Path(args.out) / args.arm), steps=args.steps, threads=args.threads,
+                                eval_every=args.eval_every, checkpoint_every=args.eval_every, **ARMS[args.arm])
+    train_contact(config, train, test, resume=True, progress=False)
+    return 0
+
+
+def print_table(out: Path) -> None:
+    print("| arm | step | images | " + " | ".join(name for _, name in COLUMNS) + " | train images/s |")
+    print("|---" * (len(COLUMNS) + 4) + "|")
+    for arm in ARMS:
+        curve, log = out / arm / "curve.csv", out / arm / "log.csv"
+        if not curve.is_file():
+            continue
+        with log.open() as f:
+            rates = [float(r["images_per_s"]) for r in csv.DictReader(f)]
+        rate = sorted(rates)[len(rates) // 2] if rates else float("nan")
+        with curve.open() as f:
+            for row in csv.DictReader(f):
+                cells = " | ".join(f"{float(row[key]):.1f}" for key, _ in COLUMNS)
+                print(f"| {arm} | {row['step']} | {row['images']} | {cells} | {rate:.1f} |")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

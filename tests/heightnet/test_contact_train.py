@@ -1,0 +1,133 @@
+"""HeightNet v2 data, training, resume, evaluation and export on the tiny fake synth sequences."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from fake_synth import fake_sequences
+from stages.ground_contact import heights_from_offsets
+from heightnet.contact_data import ContactPairDataset, ContactSampling, build_contact_cache
+from heightnet.contact_eval import evaluate
+from heightnet.contact_export import export_contact
+from heightnet.contact_train import ContactTrainConfig, load_state, train_contact
+from heightnet.contact_model import ContactNet
+
+
+@pytest.fixture(scope="module")
+def contact_sequences(tmp_path_factory):
+    return build_contact_cache(fake_sequences(count=2, frames=3, width=128, height=96),
+                               tmp_path_factory.mktemp("contact_cache"))
+
+
+def small_config(out, **kw) -> ContactTrainConfig:
+    return ContactTrainConfig(out=str(out), input_width=64, input_height=64, steps=4, batch_size=2,
+                              threads=1, checkpoint_every=2, log_every=1, eval_every=2,
+                              widths=(8, 8, 16, 16), **kw)
+
+
+@pytest.mark.parametrize("sampling", [ContactSampling(), ContactSampling(crop_probability=1.0),
+                                      ContactSampling(camera_channels=True)])
+def test_samples_decode_to_their_own_heights(contact_sequences, sampling):
+    """Whatever the window, flip and squash, the sample's offsets decode with the sample's camera
+    to the sample's heights (to nearest-neighbour resampling of the labels)."""
+    dataset = ContactPairDataset(contact_sequences, 64, 48, sampling, seed=3)
+    from stages.ground_contact import PinholeCamera
+    for item in range(len(dataset)):
+        sample = dataset[item]
+        camera = PinholeCamera(sample["K"].astype(np.float64), sample["R"].astype(np.float64),
+                               sample["C"].astype(np.float64))
+        for frame in range(2):
+            offsets = sample["offsets"][frame].transpose(1, 2, 0)
+            truth = sample["height"][frame, 0]
+            labelled = np.isfinite(offsets[..., 0]) & np.isfinite(truth)
+            decoded = heights_from_offsets(camera, np.nan_to_num(offsets))
+            movers = labelled & (sample["instance"][frame, 0] > 0)
+            assert movers.sum() > 0
+            # float16 storage and the resampling's sub-pixel shift: a few centimetres at most.
+            assert np.median(np.abs(decoded - truth)[movers]) < 0.03
+        assert sample["image"].shape == (2, 3, 48, 64)
+        assert sample["camera_valid"] == (sampling.crop_probability == 0)
+        assert ("camera_channels" in sample) == sampling.camera_channels
+
+
+def test_resumed_training_equals_an_uninterrupted_run(contact_sequences, tmp_path):
+    whole = train_contact(small_config(tmp_path / "whole"), contact_sequences, progress=False)
+    train_contact(small_config(tmp_path / "split"), contact_sequences, progress=False, max_steps=2)
+    resumed = train_contact(small_config(tmp_path / "split"), contact_sequences, progress=False,
+                            resume=True)
+    assert resumed["step"] == whole["step"] == 4
+    for a, b in zip(whole["net"].state_dict().values(), resumed["net"].state_dict().values()):
+        # Adam's moments pass through float16 in the committed state: equal to a small tolerance.
+        assert torch.allclose(a.float(), b.float(), atol=2e-3)
+    with pytest.raises(FileExistsError):
+        train_contact(small_config(tmp_path / "whole"), contact_sequences, progress=False)
+
+
+def test_resume_refuses_another_architecture(contact_sequences, tmp_path):
+    train_contact(small_config(tmp_path / "run"), contact_sequences, progress=False, max_steps=2)
+    with pytest.raises(ValueError, match="cannot resume"):
+        train_contact(small_config(tmp_path / "run", trunk="depthwise"), contact_sequences,
+                      progress=False, resume=True)
+
+
+def test_training_logs_losses_and_the_held_out_curve(contact_sequences, tmp_path):
+    train_contact(small_config(tmp_path / "run"), contact_sequences, contact_sequences[:1], progress=False)
+    log = (tmp_path / "run" / "log.csv").read_text().splitlines()
+    curve = (tmp_path / "run" / "curve.csv").read_text().splitlines()
+    assert len(log) == 5 and log[0].startswith("step,images")
+    assert len(curve) == 3 and "rmse_cm" in curve[0]
+    total = [float(row.split(",")[3]) for row in log[1:]]
+    assert all(math.isfinite(v) for v in total)
+    net = ContactNet(small_config(tmp_path).architecture())
+    step, images = load_state(tmp_path / "run" / "checkpoint.pt", net, None)
+    assert (step, images) == (4, 16)
+    assert (tmp_path / "run" / "checkpoint.pt").stat().st_size < 1_000_000
+
+
+def test_evaluation_of_exact_offsets_and_camera_scores_near_zero(contact_sequences):
+    """A stand-in network that returns the exact offsets and camera scores ~0 both ways; an
+    untrained network does not."""
+    from heightnet.contact_data import camera_targets
+
+    width, height = 64, 64
+    answers = []
+    for seq in contact_sequences:
+        _, src_h, src_w, _ = seq.rgb.shape
+        camera = seq.camera.window(0, 0, src_w, src_h, width, height)
+        target = np.concatenate([camera_targets(camera, height), np.full(3, -10.0, np.float32)])
+        for t in range(2):
+            offsets = cv2.resize(np.nan_to_num(np.asarray(seq.offsets[t], np.float32)), (width, height),
+                                 interpolation=cv2.INTER_NEAREST_EXACT) * np.float32([width / src_w, height / src_h])
+            answers.append((offsets, target))
+
+    class Exact(torch.nn.Module):
+        arch = None
+
+        def forward(self, image, channels=None):
+            offsets, camera = answers.pop(0)
+            return (torch.from_numpy(offsets).permute(2, 0, 1)[None], None, torch.from_numpy(camera)[None])
+
+    exact = evaluate(Exact(), contact_sequences, width, height)
+    assert not answers
+    assert exact.rmse_cm["all"] < 5 and exact.rmse_heads_cm["all"] < 5
+    assert exact.pitch_error_deg < 1e-3 and exact.focal_error_pct < 1e-3
+    untrained = evaluate(ContactNet(small_config("x").architecture()), contact_sequences, width, height)
+    assert untrained.rmse_cm["all"] > 50
+
+
+def test_export_matches_pytorch_and_says_what_it_outputs(contact_sequences, tmp_path):
+    import onnxruntime as ort
+
+    train_contact(small_config(tmp_path / "run"), contact_sequences, progress=False, max_steps=1)
+    report = export_contact(tmp_path / "run" / "checkpoint.pt", tmp_path / "v2.onnx")
+    assert max(report["offsets"], report["ground_logit"], report["camera"]) < 1e-3
+    session = ort.InferenceSession(str(tmp_path / "v2.onnx"), providers=["CPUExecutionProvider"])
+    meta = session.get_modelmeta().custom_metadata_map
+    assert meta["heightpipe.output_units"] == "ground_contact_offsets"
+    assert meta["heightpipe.trained_images"] == "4"
+    assert [o.name for o in session.get_outputs()] == ["offsets", "ground_logit", "camera"]
