@@ -1,4 +1,4 @@
-"""The pipeline, in the order the README lists it.
+"""The pipeline, in the order docs/design.md lists it.
 
 open the source → seed the background model from frames read ahead (files only) → for each
 frame: (undistortion) → ground segmentation → height inference → feature matching → object

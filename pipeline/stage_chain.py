@@ -2,7 +2,7 @@
 
 ``heightpipe run``, ``eval-tracks``, ``calibrate`` and the benchmarks all build their stages
 with ``build_stage_chain`` and push frames through ``StageChain.process``, so what is measured
-in evaluation is what runs in production. The order is the README's:
+in evaluation is what runs in production. The order is the one docs/design.md lists:
 
 (undistortion) → ground segmentation → height inference → feature matching → object
 extraction → (geometry) → tracking
