@@ -226,14 +226,14 @@ def test_reupdate_after_gap_resets_drifted_velocity():
 
 def test_walker_reports_stature_not_mean_of_gait():
     rng = np.random.default_rng(3)
-    tracker = ObjectTracker(TrackingConfig(height_measurement_noise_m=0.01))
+    tracker = ObjectTracker(TrackingConfig())
     stature = 1.80
     for frame in range(80):
         dip = 0.04 * np.sin(np.pi * frame / 5.0) ** 2                    # hip drop, mean 2 cm
         tracks = tracker.update([_detection(20 + 3 * frame, 100, stature - dip + rng.normal(0, 0.01),
                                             noise_m=0.01)])
     with_window = tracks[0].height_m
-    plain = ObjectTracker(TrackingConfig(height_measurement_noise_m=0.01, stature_window=0))
+    plain = ObjectTracker(TrackingConfig(stature_window=0))
     rng = np.random.default_rng(3)
     for frame in range(80):
         dip = 0.04 * np.sin(np.pi * frame / 5.0) ** 2
