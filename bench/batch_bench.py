@@ -64,7 +64,7 @@ def busy_cpu_s() -> tuple[float, float]:
 
 def run(folder: Path, out: Path, workers: int, threads: int, engine: str, model: str):
     from pipeline.batch import BatchOptions, run_batch
-    from pipeline.config import load_config
+    from core.config import load_config
 
     config = load_config(None, [])
     config.height.model = model

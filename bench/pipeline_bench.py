@@ -44,7 +44,7 @@ def decode_fps(clip: Path, frames: int) -> float:
 
 
 def main() -> None:
-    from pipeline.config import load_config
+    from core.config import load_config
     from pipeline.runner import run_pipeline
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

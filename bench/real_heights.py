@@ -176,7 +176,7 @@ def identity_scores(labels: dict[int, list[LabelledPerson]],
     (IoU >= 0.5)."""
     from scipy.optimize import linear_sum_assignment
 
-    from pipeline.eval_tracks import matched_at_iou
+    from pipeline.eval_metrics import matched_at_iou
 
     together: dict[tuple[int, str], int] = {}
     followed: dict[int, list[tuple[int, str]]] = {}

@@ -62,15 +62,15 @@ def main(argv: list[str] | None = None) -> int:
 
 def _vehicles(sequence, every: int):
     """(class, true height, box height on the true mask, matched detection or None, rgb, camera)."""
-    from pipeline.config import load_config
-    from pipeline.eval_tracks import build_eval_stages, matched_at_iou, prime_sequence_background, sequence_packets
+    from core.config import load_config
+    from pipeline.eval_metrics import matched_at_iou
+    from pipeline.eval_sequences import build_eval_chain, prime_sequence_background, sequence_packets
     from stages.vehicle_geometry import vehicle_box
 
     config = load_config(None)
-    stages = [(name, stage) for name, stage in build_eval_stages(sequence, config, "model", geometry=True)
-              if name != "tracking"]
-    prime_sequence_background(sequence, stages, config)
-    for truth_frame, packet in sequence_packets(sequence, stages):
+    chain = build_eval_chain(sequence, config, "model", geometry=True).without("tracking")
+    prime_sequence_background(sequence, chain, config)
+    for truth_frame, packet in sequence_packets(sequence, chain):
         index = packet.frame.index
         if index % every:
             continue
@@ -132,7 +132,8 @@ def _tile(rgb: np.ndarray, camera, detection, truth_m: float) -> np.ndarray:
     roof = half * CAR_ROOF_SHARE if fitted.length_m < CAR_MAX_LENGTH_M else half
 
     def outline(extent, z):
-        corners = [centre + a * extent[0] * along + b * extent[1] * across for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))]
+        corners = [centre + a * extent[0] * along + b * extent[1] * across
+                   for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))]
         return project_points(camera, np.column_stack([np.array(corners), np.full(4, z)]))
 
     # The footprint where its points were taken (BODY_CLEARANCE_M up), the roof at the box's height

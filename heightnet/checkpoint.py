@@ -8,7 +8,7 @@ from typing import Any
 import torch
 
 from heightnet.model import HeightNet, build_model
-from pipeline.errors import ModelError
+from core.errors import ModelError
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:

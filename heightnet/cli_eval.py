@@ -20,9 +20,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace, config) -> int:
+    from core.extras import require
+
+    require("matplotlib", "train", "heightpipe eval")
     from heightnet.evaluate import run_evaluation
     from heightnet.predict import model_path_from_config
-    from pipeline.errors import ConfigError
+    from core.errors import ConfigError
     from synth.dataset import list_sequences
 
     root = Path(args.data)

@@ -14,6 +14,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace, config) -> int:
+    from core.extras import require
+
+    for module in ("torch", "onnx"):
+        require(module, "train", "heightpipe export")
     from heightnet.export import export_checkpoint
 
     checkpoint = Path(args.checkpoint or Path(config.train.out) / "checkpoint.pt")

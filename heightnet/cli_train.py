@@ -19,9 +19,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace, config) -> int:
     import dataclasses
 
+    from core.extras import require
+
+    for module in ("torch", "matplotlib"):
+        require(module, "train", "heightpipe train")
     from heightnet.data import build_cache, dataset_hash
     from heightnet.train import train
-    from pipeline.errors import ConfigError
+    from core.errors import ConfigError
     from synth.dataset import list_sequences
 
     train_config = dataclasses.replace(config.train, data=args.data or config.train.data,

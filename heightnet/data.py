@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from heightnet.normalisation import normalise
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 CACHE_VERSION = 1
 MATCHERS = ("lk", "orb")

@@ -1,4 +1,4 @@
-"""Checkpoint -> ONNX file that meets notes_for_helpers/MODEL_CONTRACT.md, checked against PyTorch."""
+"""Checkpoint -> ONNX file that meets the run-time contract (``stages/heightnet_model.py``), checked against PyTorch."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import torch
 from heightnet.checkpoint import load_checkpoint, model_from_checkpoint
 from heightnet.model import ExportedHeightNet, HeightNet
 from heightnet.normalisation import MEAN, STD
-from pipeline.errors import ModelError
+from core.errors import ModelError
 
 OPSET = 17
 

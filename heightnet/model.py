@@ -57,7 +57,7 @@ ARCHITECTURES = {
 
 def architecture_from_name(name: str, backbone: str = "") -> Architecture:
     """The named configuration, optionally with another encoder (e.g. 'paper' on ResNeXt-50)."""
-    from pipeline.errors import ConfigError
+    from core.errors import ConfigError
 
     if name not in ARCHITECTURES:
         raise ConfigError(f"unknown architecture {name!r} (known: {', '.join(ARCHITECTURES)})")

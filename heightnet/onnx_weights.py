@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from heightnet.model import ExportedHeightNet, HeightNet
-from pipeline.errors import ModelError
+from core.errors import ModelError
 
 PREFIX = "net."
 TOLERANCE = 1e-3

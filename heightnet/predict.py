@@ -1,13 +1,12 @@
 """Height maps from images with the exported ONNX model (ONNX Runtime only: no torch needed).
 
-``HeightPredictor`` follows the run-time contract (notes_for_helpers/MODEL_CONTRACT.md): resize
+``HeightPredictor`` follows the run-time contract (``stages/heightnet_model.py``): resize
 any frame to the model's input with INTER_AREA, normalise, run, resize both outputs back
 bilinearly, and turn ``camera_height_fraction`` outputs into metres with the camera height.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -15,11 +14,10 @@ from typing import Iterator
 import cv2
 import numpy as np
 
+from core.errors import ConfigError, ModelError, SourceError
 from heightnet.normalisation import normalise
-from pipeline.errors import ConfigError, ModelError, SourceError
+from stages.heightnet_model import SHIPPED_MODEL
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-SHIPPED_MODEL = REPO_ROOT / "stages" / "models" / "heightnet.onnx"
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v"}
 
@@ -40,32 +38,23 @@ def model_path_from_config(configured: str) -> Path:
 
 
 class HeightPredictor:
-    def __init__(self, model_path: str | Path, threads: int = 2):
-        import onnxruntime as ort
+    """Height maps of RGB images from an exported model.
 
-        model_path = Path(model_path)
-        if not model_path.is_file():
-            raise ModelError(f"height model not found: {model_path}")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
-        options.inter_op_num_threads = 1
-        try:
-            self.session = ort.InferenceSession(str(model_path), options,
-                                                providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise ModelError(f"cannot load height model {model_path}: {exc}") from None
-        meta = self.session.get_modelmeta().custom_metadata_map
-        try:
-            self.width = int(meta["heightpipe.input_width"])
-            self.height = int(meta["heightpipe.input_height"])
-            self.mean = json.loads(meta["heightpipe.mean"])
-            self.std = json.loads(meta["heightpipe.std"])
-            self.units = meta["heightpipe.output_units"]
-        except (KeyError, ValueError) as exc:
-            raise ModelError(f"{model_path} lacks heightpipe metadata ({exc})") from None
-        if self.units not in ("metres", "camera_height_fraction"):
-            raise ModelError(f"{model_path}: unknown output units {self.units!r}")
-        self.metadata = dict(meta)
+    The ONNX Runtime session, its metadata and its input and output signature are
+    ``stages.heightnet_model.HeightNetModel``'s (one wrapper for the run-time stages and for
+    these commands); this class adds the RGB-image interface and the metres.
+    """
+
+    def __init__(self, model_path: str | Path, threads: int = 2):
+        from stages.heightnet_model import HeightNetModel
+
+        model = HeightNetModel(model_path, threads)
+        self.session = model.session
+        self.input_name = model.input_name
+        self.width, self.height = model.info.input_width, model.info.input_height
+        self.mean, self.std = list(model.info.mean), list(model.info.std)
+        self.units = model.info.output_units
+        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
 
     @property
     def needs_camera_height(self) -> bool:
@@ -79,7 +68,7 @@ class HeightPredictor:
         h, w = rgb.shape[:2]
         small = cv2.resize(rgb, (self.width, self.height), interpolation=cv2.INTER_AREA)
         image = normalise(small, self.mean, self.std)[None]
-        height, ground_logit = self.session.run(["height", "ground_logit"], {"image": image})
+        height, ground_logit = self.session.run(["height", "ground_logit"], {self.input_name: image})
         height = cv2.resize(height[0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
         ground_logit = cv2.resize(ground_logit[0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
         if self.needs_camera_height:

@@ -27,8 +27,8 @@ from heightnet.encoding import TARGETS
 from heightnet.losses import LossWeights, heightnet_loss
 from heightnet.model import build_model
 from heightnet.onnx_weights import freeze_batchnorm, load_onnx_weights, trained_steps
-from pipeline.config import TrainConfig
-from pipeline.errors import ConfigError
+from core.config import TrainConfig
+from core.errors import ConfigError
 
 LOG_FIELDS = ["step", "epoch", "lr", "total", "si", "si_above", "consistency", "ground",
               "mover_rmse_cm", "seconds"]

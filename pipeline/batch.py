@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 from pipeline.batch_manifest import DONE, FAILED, INTERRUPTED
-from pipeline.config import Config
+from core.config import Config
 
 if TYPE_CHECKING:
     from pipeline.batch_engines import TaskResult, VideoTask, WorkerStatus
@@ -106,7 +106,7 @@ def find_inputs(specs: list[str], out_dir: Path) -> list[Path]:
 
     Resolved, de-duplicated, sorted, and never anything inside DIR itself.
     """
-    from pipeline.errors import SourceError
+    from core.errors import SourceError
 
     found: set[Path] = set()
     for spec in specs:
@@ -145,7 +145,7 @@ def _locked(out_dir: Path) -> Iterator[None]:
     """One batch at a time per DIR: two would overwrite each other's manifest."""
     import fcntl
 
-    from pipeline.errors import HeightpipeError
+    from core.errors import HeightpipeError
 
     lock = open(out_dir / ".lock", "a+")
     try:
@@ -165,7 +165,7 @@ def _locked(out_dir: Path) -> Iterator[None]:
 
 
 def prepare_out_dir(out_dir: Path) -> None:
-    from pipeline.errors import HeightpipeError
+    from core.errors import HeightpipeError
 
     if out_dir.exists() and not out_dir.is_dir():
         raise HeightpipeError(f"--out {out_dir} is a file, not a folder")
@@ -245,7 +245,7 @@ class BatchProgress:
 
 def _make_engine(options: BatchOptions, cores: int):
     from pipeline.batch_engines import LocalEngine, RayEngine, ray_available
-    from pipeline.errors import ConfigError, HeightpipeError
+    from core.errors import ConfigError, HeightpipeError
 
     if options.engine not in ENGINES:
         raise ConfigError(f"unknown engine {options.engine!r} (choose {' or '.join(ENGINES)})")
@@ -261,7 +261,7 @@ def _make_engine(options: BatchOptions, cores: int):
 
 
 def _check_config(config: Config) -> None:
-    from pipeline.errors import ConfigError
+    from core.errors import ConfigError
 
     if config.capture.stride < 1:
         raise ConfigError("capture.stride must be at least 1")

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from pipeline.batch_manifest import DONE, FAILED, INTERRUPTED
-from pipeline.config import Config
+from core.config import Config
 
 VIDEOS_FOLDER = "videos"
 PARTIAL_FOLDER = ".partial"
@@ -84,7 +84,7 @@ def _now() -> str:
 
 
 def _one_line(exc: BaseException) -> str:
-    from pipeline.errors import HeightpipeError
+    from core.errors import HeightpipeError
 
     text = str(exc).strip().replace("\n", " ")
     return text if isinstance(exc, HeightpipeError) else f"{type(exc).__name__}: {text}"

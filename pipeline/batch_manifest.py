@@ -16,8 +16,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.config import Config
-from pipeline.errors import HeightpipeError
+from core.config import Config
+from core.errors import HeightpipeError
 
 MANIFEST_NAME = "manifest.json"
 MANIFEST_VERSION = 1
@@ -61,6 +61,9 @@ def config_fingerprint(config: Config) -> str:
     relevant["height"].pop("threads")
     relevant["output"].pop("progress")
     relevant["output"].pop("directory")
+    # Object extraction's keys are hashed under "tracking", where they were before they got their
+    # own [objects] section: archives processed before that are not redone for the move alone.
+    relevant["tracking"].update(dataclasses.asdict(config.objects))
     model = Path(config.height.model or SHIPPED_MODEL)
     if model.is_file():
         stat = model.stat()

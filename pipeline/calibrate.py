@@ -34,10 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace, config) -> int:
     from tqdm import tqdm
 
-    from pipeline.errors import ConfigError, HeightpipeError
-    from pipeline.packets import FramePacket
+    from core.errors import ConfigError, HeightpipeError
     from pipeline.run_command import apply_flags
-    from pipeline.runner import build_stages, prime_background
+    from pipeline.stage_chain import build_stage_chain
     from stages.calibration import ASSUMED_CAMERA_HEIGHT_M, camera_for_run
     from stages.capture import open_source
     from stages.self_calibration import HeadFootCollector, HeightPrior, self_calibrate
@@ -58,26 +57,24 @@ def main(args: argparse.Namespace, config) -> int:
         # A calibration file's pose is dropped too; the network's scale-free heights are taken
         # at an assumed camera height: they only tell what stands above the ground.
         camera = dataclasses.replace(camera, R=None, t=None, height_m=ASSUMED_CAMERA_HEIGHT_M, source="none")
-        stages = [stage for _, stage in build_stages(config, camera)]
+        chain = build_stage_chain(config, camera)
     except HeightpipeError:
         source.close()
         raise
-    prime_background(stages, source.background_sample(config.tracking.background_prime_frames,
-                                                       config.tracking.background_prime_s))
+    chain.prime(source.background_sample(config.objects.background_prime_frames,
+                                         config.objects.background_prime_s))
     collector = HeadFootCollector(width, height)
     progress = tqdm(total=source.stats.expected, unit="frame", disable=args.no_progress or not config.output.progress,
                     desc="collecting people", dynamic_ncols=True, file=sys.stderr)
     try:
-        for frame in source.frames():
-            packet = FramePacket(frame=frame, camera=camera)
-            for stage in stages:
-                packet = stage.process(packet)
+        for packet in chain.run(source.frames(), camera):
             collector.add(packet.tracks)
             progress.update(1)
     except KeyboardInterrupt:
         print("heightpipe: interrupted, calibrating from the frames so far", file=sys.stderr)
     finally:
         progress.close()
+        chain.close()
         source.close()
 
     foot, top, track_ids = collector.arrays(args.min_track_frames)

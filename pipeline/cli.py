@@ -12,8 +12,8 @@ import importlib
 import os
 import sys
 
-from pipeline.config import load_config
-from pipeline.errors import HeightpipeError
+from core.config import load_config
+from core.errors import HeightpipeError
 
 # (command, module, one-line help)
 COMMANDS = [

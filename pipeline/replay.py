@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.config import Config
-from pipeline.errors import HeightpipeError
+from core.config import Config
+from core.errors import HeightpipeError
 
 TOPICS = ("/tracks", "/camera/image", "/camera/calibration", "/camera/height", "/camera/ground",
           "/camera/matches")

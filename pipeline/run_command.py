@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from pipeline.config import Config
+from core.config import Config
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,7 +58,7 @@ def default_prefix(source: str, out: str | None, config: Config) -> Path:
 
 
 def main(args: argparse.Namespace, config: Config) -> int:
-    from pipeline.errors import ConfigError
+    from core.errors import ConfigError
     from pipeline.runner import run_pipeline
     from pipeline.summary import format_summary
 

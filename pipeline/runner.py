@@ -1,4 +1,4 @@
-"""The pipeline, in the order the README lists it.
+"""The pipeline, in the order docs/design.md lists it.
 
 open the source → seed the background model from frames read ahead (files only) → for each
 frame: (undistortion) → ground segmentation → height inference → feature matching → object
@@ -18,8 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
-from pipeline.config import Config
-from pipeline.packets import CameraInfo, FramePacket
+from core.config import Config
+from core.packets import CameraInfo
+from core.stage import Sink
+from pipeline.stage_chain import build_stage_chain, close_all
 from stages.capture import CaptureStats, FrameSource, open_source
 
 
@@ -119,51 +121,12 @@ def build_camera(config: Config, width: int, height: int) -> CameraInfo:
     return camera_for_run(config.camera, width, height)
 
 
-def build_stages(config: Config, camera: CameraInfo) -> list[tuple[str, object]]:
-    from stages.calibration import has_distortion, is_calibrated
-    from stages.feature_matching import FeatureMatcher
-    from stages.geometry import GeometryMeasurer
-    from stages.ground_segmentation import GroundSegmenter
-    from stages.height_inference import HeightEstimator
-    from stages.heightnet_model import HeightNetModel
-    from stages.object_extraction import ObjectExtractor
-    from stages.tracking import TrackingStage
-    from stages.undistortion import Undistorter
-
-    model = HeightNetModel(config.height.model, config.height.threads)
-    stages: list[tuple[str, object]] = []
-    if has_distortion(camera):
-        stages.append(("undistortion", Undistorter(camera)))
-    stages += [
-        ("ground", GroundSegmenter(config.ground, model)),
-        ("height", HeightEstimator(model)),
-        ("matching", FeatureMatcher(config.matching, config.ground)),
-        ("objects", ObjectExtractor(config.tracking, config.ground)),
-    ]
-    if is_calibrated(camera):
-        stages.append(("geometry", GeometryMeasurer(config.camera)))
-    stages.append(("tracking", TrackingStage(config.tracking)))
-    return stages
-
-
-def prime_background(stages: list[object], images: list) -> None:
-    """Seed the object extractor's background model from frames read ahead (undistorted first)."""
-    from stages.object_extraction import ObjectExtractor
-    from stages.undistortion import Undistorter
-
-    for stage in stages:
-        if isinstance(stage, Undistorter):
-            images = [stage.undistort(image) for image in images]
-        if isinstance(stage, ObjectExtractor):
-            stage.prime_background(images)
-
-
-def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> list[tuple[str, object]]:
+def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> list[tuple[str, Sink]]:
     """The sinks of this run; if one cannot be opened, those already open are closed first."""
     from stages.sink_common import FrameEncoder
 
     encoder = FrameEncoder.from_config(config.output)  # one JPEG per frame, shared by both sinks
-    sinks: list[tuple[str, object]] = []
+    sinks: list[tuple[str, Sink]] = []
     try:
         if outputs.rrd is not None:
             from stages.rerun_sink import RerunSink
@@ -180,7 +143,7 @@ def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> lis
 
             sinks.append(("csv", TrackCsvSink(outputs.csv)))
     except BaseException:
-        _close_all([sink for _, sink in sinks])
+        close_all([sink for _, sink in sinks])
         raise
     return sinks
 
@@ -221,10 +184,9 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     camera = build_camera(config, width, height)
     summary.camera_source = camera.source
     try:
-        stages = build_stages(config, camera)
-        sample = source.background_sample(config.tracking.background_prime_frames,
-                                          config.tracking.background_prime_s)
-        prime_background([stage for _, stage in stages], sample)
+        chain = build_stage_chain(config, camera)
+        chain.prime(source.background_sample(config.objects.background_prime_frames,
+                                             config.objects.background_prime_s))
         sinks = build_sinks(outputs, config, prefix.name)
     except BaseException:
         source.close()
@@ -234,12 +196,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     start = time.perf_counter()
     try:
         with _StopSignals().installed() as stop_signals:
-            for frame in source.frames():
-                packet = FramePacket(frame=frame, camera=camera)
-                for name, stage in stages:
-                    t0 = time.perf_counter()
-                    packet = stage.process(packet)
-                    packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
+            for packet in chain.run(source.frames(), camera):
                 with stop_signals.writing():
                     for name, sink in sinks:
                         t0 = time.perf_counter()
@@ -262,20 +219,6 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     finally:
         summary.wall_s = time.perf_counter() - start
         progress.close()
-        _close_all([stage for _, stage in stages + sinks] + [source])
+        close_all([stage for _, stage in chain.stages + sinks] + [source])
     return summary
 
-
-def _close_all(parts: list[object]) -> None:
-    """Close every part even if one fails, so one broken sink cannot cost the others' files."""
-    errors = []
-    for part in parts:
-        close = getattr(part, "close", None)
-        if close is None:
-            continue
-        try:
-            close()
-        except Exception as exc:  # re-raised below, after the others are closed
-            errors.append(exc)
-    if errors:
-        raise errors[0]

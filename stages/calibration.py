@@ -43,9 +43,9 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import CameraConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import CameraInfo
+from core.config import CameraConfig
+from core.errors import ConfigError
+from core.packets import CameraInfo
 
 # Camera height assumed when nothing is known, so that a scale-free network output still
 # becomes metres; such a camera has source "none" and every height it gives is flagged.

@@ -16,9 +16,9 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
-from pipeline.config import CaptureConfig
-from pipeline.errors import SourceError
-from pipeline.packets import Frame
+from core.config import CaptureConfig
+from core.errors import SourceError
+from core.packets import Frame
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"}
 STREAM_PREFIXES = ("rtsp://", "rtsps://", "http://", "https://", "rtmp://", "udp://", "tcp://")

@@ -8,8 +8,8 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-from pipeline.errors import HeightpipeError
-from pipeline.packets import FramePacket
+from core.errors import HeightpipeError
+from core.packets import FramePacket
 from stages.sink_common import confirmed
 
 CSV_HEADER = ("frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score",

@@ -12,8 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.config import GroundConfig, MatchingConfig
-from pipeline.packets import FeatureMatches, FramePacket
+from core.config import GroundConfig, MatchingConfig
+from core.packets import FeatureMatches, FramePacket
 
 FORWARD_BACKWARD_MAX_PX = 1.0
 # Share of the ORB budget spent on above-ground regions: movers are small but matter most.
@@ -81,6 +81,9 @@ class FeatureMatcher:
         self._prev_gray = gray
         self._prev_keypoints, self._prev_descriptors = self._detect(gray, above_ground)
         return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
 
     def _match(self, gray: np.ndarray, above_ground: np.ndarray | None) -> FeatureMatches:
         prev = np.float32([kp.pt for kp in self._prev_keypoints]).reshape(-1, 1, 2)

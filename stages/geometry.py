@@ -32,8 +32,8 @@ from collections import deque
 
 import numpy as np
 
-from pipeline.config import CameraConfig
-from pipeline.packets import CameraInfo, Detection, FramePacket
+from core.config import CameraConfig
+from core.packets import CameraInfo, Detection, FramePacket
 from stages.calibration import has_distortion, heights_from_foot_top, is_calibrated, undistort_pixels
 from stages.vehicle_geometry import vehicle_box
 
@@ -98,6 +98,9 @@ class GeometryMeasurer:
             if self.network_scale is not None:
                 self.network_scale.rescale(packet.detections)
         return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
 
     def measure(self, camera: CameraInfo, detections: list[Detection]) -> None:
         foot = np.array([d.foot_xy for d in detections], dtype=float)

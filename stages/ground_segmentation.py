@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from pipeline.config import GroundConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import FramePacket
+from core.config import GroundConfig
+from core.errors import ConfigError
+from core.packets import FramePacket
 from stages.heightnet_model import HeightNetModel
 
 METHODS = ("model", "height")
@@ -32,3 +32,6 @@ class GroundSegmenter:
             metres = self.model.to_metres(output.height, packet.camera)
             packet.ground_mask = metres < self.config.height_threshold_m
         return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""

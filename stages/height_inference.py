@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pipeline.packets import FramePacket
+from core.packets import FramePacket
 from stages.heightnet_model import HeightNetModel
 
 
@@ -24,3 +24,6 @@ class HeightEstimator:
             height[packet.ground_mask] = 0.0
         packet.height_map = height
         return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""

@@ -15,8 +15,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.errors import ModelError
-from pipeline.packets import CameraInfo, Frame
+from core.errors import ModelError
+from core.packets import CameraInfo, Frame
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
 OUTPUT_UNITS = ("metres", "camera_height_fraction")

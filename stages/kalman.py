@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from pipeline.config import TrackingConfig
+from core.config import TrackingConfig
 
 Box = tuple[float, float, float, float]
 

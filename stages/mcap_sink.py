@@ -32,9 +32,9 @@ from foxglove.messages import (CameraCalibration, Color, CompressedImage, ImageA
                                KeyValuePair, Point2, PointsAnnotation, PointsAnnotationType,
                                RawImage, TextAnnotation, Timestamp)
 
-from pipeline.config import OutputConfig
-from pipeline.errors import HeightpipeError
-from pipeline.packets import CameraInfo, FeatureMatches, FramePacket, Track
+from core.config import OutputConfig
+from core.errors import HeightpipeError
+from core.packets import CameraInfo, FeatureMatches, FramePacket, Track
 from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, MATCH_KIND_KEY,
                                 OBJECT_MATCH_RGB, FrameEncoder, check_output_config, confirmed,
                                 track_label)

@@ -19,7 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline.packets import Detection
+from core.packets import Detection
 from stages.association import intersection_matrix
 
 # A predicted box is inside a detection when this share of it overlaps the detection, and the

@@ -27,6 +27,10 @@ Background method, measured on 10 generator sequences (oracle heights, 320x240, 
 included): KNN found 856 of 4020 boxes with 59 clutter detections at ~4 ms/frame; CNT 850 with
 169 clutter (its first ~15 frames are all foreground); MOG2 603 with 6 (its sparse masks fail
 the foreground-share test). KNN is the default.
+
+The stage is this module (the per-frame flow and its state); the background model's pieces are in
+``background_model``, the blob splitters in ``blob_splitting`` and the per-object measurements
+(class, crown and soles, robust top) in ``object_measurements``.
 """
 
 from __future__ import annotations
@@ -36,46 +40,23 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from pipeline.config import GroundConfig, TrackingConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import Detection, FramePacket
+from core.config import GroundConfig, ObjectsConfig
+from core.packets import Detection, FramePacket
 from stages.association import Region, points_in_regions
+from stages.background_model import FOREGROUND_VALUE, drop_small_pieces, make_background_subtractor
+from stages.blob_splitting import split_by_foreground, split_by_heads, split_by_height_peaks
+from stages.object_measurements import (coarse_class, fit_box_to_ends, foot_above_ground, foreground_ends,
+                                        moving_beyond_ends, robust_top, seen_outline)
 
-BACKGROUND_METHODS = ("mog2", "cnt", "knn", "gsoc", "none")
-
-# MOG2/KNN mark shadows as 127 in the foreground mask; only 255 is a moving object.
-_FOREGROUND_VALUE = 255
-# Blob splitting: cores are the parts above this share of the blob's top; a core counts when it
-# is at least this share of the largest core and of the minimum object area.
-CORE_SHARE = 0.6
-CORE_MIN_SHARE = 0.15
-CORE_MIN_AREA_SHARE = 0.25
-# Side-by-side split on the foreground: a group of foreground pieces seeds a piece of its own when
-# it covers this share of the blob's rows and is narrower than this share of its own height.
-SIDE_MIN_ROWS_SHARE = 0.5
-SIDE_MAX_ASPECT = 0.8
-# ... and only when the seeds together are at least this share of their height wide.
-SIDE_MIN_PAIR_ASPECT = 0.6
 # A part split off by height peaks needs this share of the blob's foreground test: half, as a
 # walker's plain coat is half missed by the background model (Oxford: 0.34-0.38 foreground).
 PART_FOREGROUND_FACTOR = 0.5
-# Split by heads: a blob at least this share of its height wide may be people side by side; heads
-# are foreground tops this share of the height apart, each standing this share of the height
-# above the lowest point of the outline between them (shoulders are ~0.18 below the crown), and
-# each reaching this share of the highest.
-HEADS_MIN_ASPECT = 0.6
-HEADS_MIN_GAP = 0.2
-HEADS_MIN_DIP = 0.08
-HEADS_MIN_SHARE = 0.75
 # Exposure compensation: log-ratio histogram (bins of 0.02 over a factor of e each way) and the
 # gain change below which a frame is left alone (10 %: smaller steps are left to the model).
 EXPOSURE_BINS = 100
 EXPOSURE_RANGE = (-1.0, 1.0)
 EXPOSURE_TOLERANCE = 0.1
 REFERENCE_RATE = 0.05  # running mean of the scene that the gain is measured against
-# A blob whose bottom tenth stands higher than this share of its top has no visible foot
-# (Oxford, step-4,400 model: whole people 0.16-0.28, blobs missing their legs 0.22-0.49).
-FOOT_MAX_SHARE = 0.4
 # The foreground is grown by this many work pixels before it is cut to the height map.
 GROW_RADIUS = 3
 # Frames this noisy (grey levels, see ``ObjectExtractor._noisy``) are median-filtered before background
@@ -106,67 +87,19 @@ class ForegroundMasks:
     unfiltered frame where the frames are denoised."""
 
 
-def make_background_subtractor(method: str):
-    """OpenCV background subtractor by name (None for 'none').
-
-    KNN and MOG2 draw from OpenCV's process-wide random generator: it is seeded here, so that a
-    run's foreground does not depend on what ran before it in the same process (eval-tracks
-    over many sequences, a batch worker's second file).
-    """
-    cv2.setRNGSeed(0)
-    if method == "mog2":
-        return cv2.createBackgroundSubtractorMOG2(history=500, varThreshold=16, detectShadows=True)
-    if method == "knn":
-        return cv2.createBackgroundSubtractorKNN(history=500, dist2Threshold=400.0, detectShadows=True)
-    if method == "cnt":
-        # CNT absorbs stopped objects quickly; a longer max stability keeps slow walkers.
-        return cv2.bgsegm.createBackgroundSubtractorCNT(minPixelStability=15, useHistory=True,
-                                                        maxPixelStability=15 * 60, isParallel=False)
-    if method == "gsoc":
-        return cv2.bgsegm.createBackgroundSubtractorGSOC()
-    if method == "none":
-        return None
-    raise ConfigError(f"tracking.background must be one of {', '.join(BACKGROUND_METHODS)}, "
-                      f"got {method!r}")
-
-
-def coarse_class(height_m: float, box_w_px: float, box_h_px: float) -> str:
-    """Person / cyclist / vehicle / other from the object's height and its image shape.
-
-    The metric width is estimated as box width times the metres per pixel implied by the
-    height (exact for a side view, an underestimate when the camera looks down on a long
-    footprint). Crude on purpose: the tracker votes over many frames.
-    """
-    if not np.isfinite(height_m) or box_h_px <= 0:
-        return "other"
-    width_m = box_w_px * height_m / box_h_px
-    aspect = box_w_px / box_h_px
-    if height_m > 2.4:
-        return "vehicle"              # buses, trucks, vans
-    if width_m > 2.6:
-        return "vehicle"              # cars seen from the side
-    if 1.0 <= height_m <= 2.2 and aspect < 0.75:
-        return "person"
-    if 1.3 <= height_m <= 2.2 and width_m <= 2.6:
-        return "cyclist" if width_m >= 1.0 and aspect < 1.6 else "vehicle"
-    if height_m >= 1.0:
-        return "vehicle"
-    return "other"
-
-
 class ObjectExtractor:
     """Fills ``packet.foreground`` and ``packet.detections``.
 
     Parameters
     ----------
-    config : TrackingConfig
-        ``background``, ``work_width``, ``min_area_px``, ``min_object_height_m``,
-        ``height_percentile`` and ``height_measurement_noise_m`` are used.
+    config : ObjectsConfig
+        The ``[objects]`` section (all of it but ``background_prime_*``, which say which frames
+        ``prime`` is given).
     ground : GroundConfig
         ``height_threshold_m``: pixels lower than this are ground, not object.
     """
 
-    def __init__(self, config: TrackingConfig, ground: GroundConfig):
+    def __init__(self, config: ObjectsConfig, ground: GroundConfig):
         self.config = config
         self._reference: np.ndarray | None = None
         self.height_threshold_m = ground.height_threshold_m
@@ -196,13 +129,13 @@ class ObjectExtractor:
                 self._set_denoise(self._noisy([small]))
             raw = self.subtractor.apply(cv2.medianBlur(small, 3) if self._denoise else small)
             # Sensor noise is per source pixel: downscaling averages it away, at source size it specks.
-            moving = drop_small_pieces(raw == _FOREGROUND_VALUE, self.config.min_foreground_piece_px * scale * scale)
+            moving = drop_small_pieces(raw == FOREGROUND_VALUE, self.config.min_foreground_piece_px * scale * scale)
             changed = raw > 0
             packet.foreground = _resize_mask(moving, (src_w, src_h))
             ends_changed, ends_moving = changed, moving
             if self._ends_subtractor is not None:
                 unfiltered = self._ends_subtractor.apply(small)
-                ends_changed, ends_moving = unfiltered > 0, unfiltered == _FOREGROUND_VALUE
+                ends_changed, ends_moving = unfiltered > 0, unfiltered == FOREGROUND_VALUE
             grown = cv2.dilate(moving.astype(np.uint8), self.grow_kernel).astype(bool)
             masks = ForegroundMasks(moving, changed, grown, ends_changed, ends_moving)
 
@@ -231,6 +164,14 @@ class ObjectExtractor:
         packet.detections = detections
         self._prev_height_map = packet.height_map
         return packet
+
+    def prime(self, images: list[np.ndarray]) -> list[np.ndarray]:
+        """Seed the background model from look-ahead frames (``prime_background``); pass them on."""
+        self.prime_background(images)
+        return images
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
 
     def prime_background(self, images: list[np.ndarray]) -> None:
         """Seed the background model with the per-pixel median of frames spread over the clip's start.
@@ -462,7 +403,7 @@ class ObjectExtractor:
             if not (self.config.min_object_height_m <= height_m <= self.config.max_object_height_m):
                 return None
             noise_m = self._height_noise(height_m, box_h, touches_border)
-            foot_cut = foot_cut or _foot_above_ground(heights, mask, rows, height_m)
+            foot_cut = foot_cut or foot_above_ground(heights, mask, rows, height_m)
             if top_cut:
                 noise_m = float("inf")    # top cut off by the frame: a lower bound, not a height
         return Detection(
@@ -487,313 +428,6 @@ class ObjectExtractor:
         return noise
 
 
-def moving_beyond_ends(part: np.ndarray, offset: tuple[int, int], grown: np.ndarray,
-                       edge: np.ndarray) -> tuple[bool, bool]:
-    """Whether the moving region goes on from the part's top (foot) to the image edge.
-
-    The height map can end before the object does: near the frame's top the network marked a
-    walker's white shirt as ground (Oxford), leaving a blob of legs whose top is no head. When
-    the grown foreground above the blob runs without a gap to the image edge in most of the
-    blob's top columns, the object may go on outside the frame: its top is not measured (and
-    likewise its foot, below).
-    """
-    rows = np.flatnonzero(part.any(axis=1))
-    if rows.size == 0:
-        return False, False
-    x, y = offset
-    top, bottom = y + rows[0], y + rows[-1]
-    top_cols = x + np.flatnonzero(part[rows[0]:rows[0] + 2].any(axis=0))
-    foot_cols = x + np.flatnonzero(part[max(rows[-1] - 1, 0):rows[-1] + 1].any(axis=0))
-    up = _runs_to_edge(grown[:top, top_cols][::-1], edge[:top, top_cols][::-1])
-    down = _runs_to_edge(grown[bottom + 1:, foot_cols], edge[bottom + 1:, foot_cols])
-    return up, down
-
-
-def foreground_ends(part: np.ndarray, offset: tuple[int, int], changed: np.ndarray, moving: np.ndarray,
-                    reach: int) -> tuple[int, int]:
-    """Top and bottom rows (work pixels) of the object's geometry points: its crown and its soles.
-
-    The part is the grown foreground cut to the height map. Its top overshoots the head by up to
-    the growth wherever the height map is blurred (generator people: the box top 3 px over the
-    crown, geometry heights +13 cm), so the crown is the part's first row that the background
-    model saw change at all: moving, or marked as shadow (KNN calls dark hair over a light
-    street a shadow: on Oxford Town Centre the moving pixels alone put the crown 8 px low, with
-    the shadow mark 3 px, the grown box 13 px off either way). Its bottom ends where the height
-    map drops under the ground threshold, above the soles: where moving pixels reach the part's
-    last row they are followed down, at most ``reach`` rows (not through shadow marks: a cast
-    shadow lies on the ground beside the feet).
-    """
-    rows = np.flatnonzero(part.any(axis=1))
-    if rows.size == 0:
-        return offset[1], offset[1]
-    x, y = offset
-    window = (slice(y, y + part.shape[0]), slice(x, x + part.shape[1]))
-    seen = np.flatnonzero((part & changed[window]).any(axis=1))
-    top = y + int(seen[0] if seen.size else rows[0])
-    bottom = y + int(rows[-1])
-    cols = x + np.flatnonzero(part[rows[-1]] & moving[window][rows[-1]])
-    if cols.size:
-        below = moving[bottom + 1:bottom + 1 + reach, cols].any(axis=1)
-        bottom += int(below.size if below.all() else np.argmin(below))
-    return top, bottom
-
-
-def fit_box_to_ends(detection: Detection) -> None:
-    """The detection's box (with its mask and outline) from its crown row down to its soles.
-
-    The box is the grown foreground cut to the height map: its top overshoots the crown by the
-    growth and its bottom ends where the height map drops under the ground threshold, above the
-    soles (trk_val20, people: box top 1.3 px high, bottom 1.6 px short of the truth, median IoU
-    0.65). Tracking scores and the track's box should be the object's, so the box takes the
-    geometry's ends: rows above the crown are cropped, rows down to the soles added (empty).
-    """
-    x, y, w, h = detection.box
-    top, bottom = int(round(detection.top_xy[1])), int(round(detection.foot_xy[1]))
-    # A top that the frame cuts is not the crown: the box keeps the frame's edge (Oxford: a walker
-    # leaving at the top, cropped to where it changed, was taken over by a 0.86 m fragment).
-    if detection.top_cut:
-        top = int(y)
-    top = min(max(top, int(y)), int(y + h) - 1)
-    bottom = max(bottom, top + 1)
-    if top == int(y) and bottom == int(y + h):
-        return
-
-    def reframed(mask: np.ndarray | None) -> np.ndarray | None:
-        if mask is None:
-            return None
-        out = np.zeros((bottom - top, mask.shape[1]), dtype=bool)
-        keep = mask[top - int(y):bottom - int(y)]
-        out[:keep.shape[0]] = keep
-        return out
-
-    detection.mask, detection.outline = reframed(detection.mask), reframed(detection.outline)
-    detection.box = (x, float(top), w, float(bottom - top))
-
-
-def seen_outline(part: np.ndarray, offset: tuple[int, int], changed: np.ndarray) -> np.ndarray:
-    """The part from each column's first row that the background model saw change, down.
-
-    The part's top overshoots the object by the foreground's growth wherever the height map is
-    blurred (as at the crown, see ``foreground_ends``); a vehicle's outline top is its far roof
-    edge, which the vehicle geometry reads column by column. Columns with no change keep the part.
-    """
-    x, y = offset
-    seen = part & changed[y:y + part.shape[0], x:x + part.shape[1]]
-    first = np.where(seen.any(axis=0), np.argmax(seen, axis=0), 0)
-    return part & (np.arange(part.shape[0])[:, None] >= first[None, :])
-
-
-def _runs_to_edge(moving: np.ndarray, edge: np.ndarray) -> bool:
-    """Columns walked from row 0 on: in at least half, the moving run reaches the edge (or the end)."""
-    if moving.shape[1] == 0:
-        return False
-    length = moving.shape[0]
-    if length == 0:
-        return True               # the part ends on the frame's own border
-    first_gap = np.where((~moving).any(axis=0), np.argmax(~moving, axis=0), length)
-    first_edge = np.where(edge.any(axis=0), np.argmax(edge, axis=0), length)
-    return bool(np.mean(first_edge <= first_gap) >= 0.5)
-
-
-def _foot_above_ground(heights: np.ndarray, mask: np.ndarray, rows: np.ndarray, top_m: float) -> bool:
-    """The blob's bottom stands well above the ground: its feet are hidden or not foreground.
-
-    A blob of only a head and shoulders (a dark coat the background model missed, a person
-    behind a bench) ends where the object does not touch the ground; its lowest point is no
-    foot for the geometry. Checked on the height map: the bottom tenth of the blob must be
-    lower than ``FOOT_MAX_SHARE`` of the object's top.
-    """
-    if rows.size == 0 or not np.isfinite(top_m) or top_m <= 0:
-        return False
-    band = mask.copy()
-    band[:max(rows[-1] + 1 - max(1, int(0.1 * (rows[-1] - rows[0] + 1))), 0)] = False
-    values = heights[band]
-    values = values[np.isfinite(values)]
-    return bool(values.size and np.median(values) > FOOT_MAX_SHARE * top_m)
-
-
-def robust_top(heights: np.ndarray, mask: np.ndarray, percentile: float) -> float:
-    """The object's top height from its pixels: a high percentile, then a half-row correction.
-
-    The percentile (below 100) ignores single-pixel spikes of a noisy height map. A pixel sees
-    the surface at its centre, so the topmost pixel on a round top (a head) lies below the
-    apex by up to half a row: where the top row is higher than the row under it, half that
-    step is added. A flat top (a roof) has no step and gets nothing.
-    """
-    masked = np.where(mask, heights, np.nan)
-    values = masked[np.isfinite(masked)]
-    if values.size == 0:
-        return float("nan")
-    if percentile >= 100:
-        top = float(values.max())
-    else:
-        k = max(1, int(round(values.size * (1 - percentile / 100.0))))
-        top = float(np.partition(values, values.size - k)[values.size - k])
-    with np.errstate(all="ignore"):
-        row_top = np.nanmax(np.where(np.isfinite(masked), masked, -np.inf), axis=1)
-    reaching = np.flatnonzero(row_top >= top)
-    if reaching.size and reaching[0] + 1 < len(row_top) and np.isfinite(row_top[reaching[0] + 1]):
-        step = row_top[reaching[0]] - row_top[reaching[0] + 1]
-        top += 0.5 * float(np.clip(step, 0.0, None))
-    return top
-
-
-def split_by_height_peaks(blob: np.ndarray, heights: np.ndarray, min_area: float) -> list[np.ndarray]:
-    """Split a blob where its height map shows separate objects.
-
-    Two people walking side by side, or a person next to a car, merge into one foreground
-    blob; their upper parts do not. The blob's "cores" are its parts higher than
-    ``CORE_SHARE`` of its top; with two or more sizeable cores every blob pixel goes to the
-    nearest core. A taller object next to a much lower one (a bus and a child) stays merged.
-    """
-    values = heights[blob]
-    if values.size < 2 * max(min_area, 1):
-        return [blob]
-    top = float(np.percentile(values, 97))
-    core = (blob & (heights > CORE_SHARE * top)).astype(np.uint8)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(core, connectivity=8)
-    if count <= 2:
-        return [blob]
-    areas = stats[1:, cv2.CC_STAT_AREA]
-    keep = [i + 1 for i, area in enumerate(areas)
-            if area >= max(CORE_MIN_SHARE * areas.max(), CORE_MIN_AREA_SHARE * min_area)]
-    if len(keep) < 2:
-        return [blob]
-    return _split_by_seeds(blob, [labels == label for label in keep], min_area)
-
-
-def split_by_foreground(blob: np.ndarray, moving: np.ndarray, min_area: float) -> list[np.ndarray]:
-    """Split a blob where its own foreground shows people side by side.
-
-    The foreground is grown before it is cut to the height map (flat-coloured parts of an object
-    drop out of the background model), and at the work size that growth bridges the few pixels
-    between two people walking side by side; the network's height map is too smooth to part
-    them either. The foreground itself still does: its pieces are grouped by the columns they
-    cover (a person's fragments lie one above the other), and groups that are person-shaped
-    (``SIDE_MIN_ROWS_SHARE`` of the blob's rows or more, narrower than ``SIDE_MAX_ASPECT``) seed
-    one piece each, if together they are wider than one person. A car's fragments are wider
-    than tall and stay one object; a walker whose foreground comes in vertical stripes (MOG2's
-    sparse masks) is too narrow for two.
-    """
-    fg = (blob & moving).astype(np.uint8)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
-    if count <= 2:
-        return [blob]
-    blob_rows = np.flatnonzero(blob.any(axis=1))
-    span = blob_rows[-1] - blob_rows[0] + 1
-    parts = sorted((i for i in range(1, count) if stats[i, cv2.CC_STAT_AREA] >= CORE_MIN_AREA_SHARE * min_area),
-                   key=lambda i: stats[i, cv2.CC_STAT_LEFT])
-    groups: list[list[int]] = []
-    right = -1                    # first column right of the current group
-    for i in parts:
-        left, end = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_LEFT] + stats[i, cv2.CC_STAT_WIDTH]
-        if groups and left < right:
-            groups[-1].append(i)
-            right = max(right, end)
-        else:
-            groups.append([i])
-            right = end
-    seeds = []
-    for group in groups:
-        mask = np.isin(labels, group)
-        rows, cols = np.nonzero(mask)
-        height, width = rows.max() - rows.min() + 1, cols.max() - cols.min() + 1
-        if height >= SIDE_MIN_ROWS_SHARE * span and width < SIDE_MAX_ASPECT * height:
-            seeds.append(mask)
-    if len(seeds) < 2:
-        return [blob]
-    rows, cols = np.nonzero(np.logical_or.reduce(seeds))
-    if cols.max() - cols.min() + 1 < SIDE_MIN_PAIR_ASPECT * (rows.max() - rows.min() + 1):
-        return [blob]             # as narrow as one person: one walker's foreground in stripes
-    return _split_by_seeds(blob, seeds, min_area)
-
-
-def _split_by_seeds(blob: np.ndarray, seeds: list[np.ndarray], min_area: float) -> list[np.ndarray]:
-    """Every blob pixel to its nearest seed; the pieces, or the blob whole if fewer than two are big enough."""
-    free = np.full(blob.shape, 255, np.uint8)
-    for seed in seeds:
-        free[seed] = 0
-    # Label of the nearest seed component for every pixel (the seeds are the zero pixels).
-    _, nearest = cv2.distanceTransformWithLabels(free, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_CCOMP)
-    pieces = []
-    for seed in seeds:
-        seed_labels = np.unique(nearest[seed])
-        piece = blob & np.isin(nearest, seed_labels)
-        if piece.sum() >= min_area:
-            pieces.append(piece)
-    return pieces if len(pieces) >= 2 else [blob]
-
-
-def split_by_heads(part: np.ndarray, fg: np.ndarray, min_area: float) -> list[np.ndarray]:
-    """Split a wide blob into columns, one per head on its foreground outline.
-
-    A group walking close together is one foreground blob with one smooth hump in the network's
-    height map; ``split_by_foreground`` needs gaps that a crowd does not leave. Its outline does
-    show the heads: the top row of foreground in each column dips between two people by their
-    shoulders. Peaks of that outline at least ``HEADS_MIN_GAP`` of the blob's height apart, with
-    a dip of ``HEADS_MIN_DIP`` between them, cut the blob at the dip. A car's roof is one flat
-    peak and stays whole; so does a blob any of whose pieces would be wider than a person.
-    """
-    rows = np.flatnonzero(part.any(axis=1))
-    cols = np.flatnonzero(part.any(axis=0))
-    if rows.size == 0:
-        return [part]
-    span = rows[-1] - rows[0] + 1
-    if cols[-1] - cols[0] + 1 < HEADS_MIN_ASPECT * span:
-        return [part]
-    moving = part & fg
-    has = moving.any(axis=0)
-    # Outline: how high above the part's bottom the foreground reaches in each column (0: none).
-    outline = np.where(has, rows[-1] + 1 - np.argmax(moving, axis=0), 0).astype(float)
-    reach = max(1, int(round(HEADS_MIN_GAP * span / 2)))
-    padded = np.pad(outline, reach, constant_values=0)
-    local_max = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1).max(axis=1)
-    # Heads of a group stand about as high as each other: a lower bump is a bag, a wheel, a hand.
-    tall = outline >= HEADS_MIN_SHARE * outline.max()
-    peaks = np.flatnonzero((outline == local_max) & has & tall)
-    # Peaks closer than a head's spacing are one head (a plateau gives a run of them): the highest.
-    heads: list[int] = []
-    for c in peaks:
-        if heads and c - heads[-1] < HEADS_MIN_GAP * span:
-            if outline[c] > outline[heads[-1]]:
-                heads[-1] = c
-            continue
-        heads.append(c)
-    cuts = []
-    for left, right in zip(heads, heads[1:]):
-        between = outline[left:right + 1]
-        lowest = np.flatnonzero(between == between.min())
-        dip = left + int(lowest[len(lowest) // 2])   # the middle of a flat stretch of shoulders
-        if min(outline[left], outline[right]) - outline[dip] >= HEADS_MIN_DIP * span:
-            cuts.append(dip)
-    if not cuts:
-        return [part]
-    pieces = []
-    for start, stop in zip([0] + cuts, cuts + [part.shape[1]]):
-        piece = np.zeros_like(part)
-        piece[:, start:stop] = part[:, start:stop]
-        piece_cols = np.flatnonzero(piece.any(axis=0))
-        if piece_cols.size and piece_cols[-1] - piece_cols[0] + 1 >= SIDE_MAX_ASPECT * span:
-            return [part]             # a piece wider than a person: not a row of people
-        if piece.sum() >= min_area:
-            pieces.append(piece)
-    return pieces if len(pieces) >= 2 else [part]
-
-
-def drop_small_pieces(mask: np.ndarray, min_px: float) -> np.ndarray:
-    """The mask without its 8-connected pieces smaller than ``min_px`` pixels (all kept when <= 1).
-
-    At dusk, at night and in rain the background model flags specks of sensor noise all over
-    a low-resolution frame; grown by a few pixels they join into one blob with every walker
-    near them, too sparse to pass the foreground test. A walker's one-pixel legs stay: they
-    hang on to the body's piece.
-    """
-    if min_px <= 1 or not mask.any():
-        return mask
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    keep = stats[:, cv2.CC_STAT_AREA] >= min_px
-    keep[0] = False
-    return keep[labels]
 
 
 def _sample(image: np.ndarray, points: np.ndarray) -> np.ndarray:

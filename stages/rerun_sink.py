@@ -27,9 +27,9 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from pipeline.config import OutputConfig
-from pipeline.errors import ConfigError, HeightpipeError
-from pipeline.packets import OBJECT_CLASSES, FramePacket, Track
+from core.config import OutputConfig
+from core.errors import ConfigError, HeightpipeError
+from core.packets import OBJECT_CLASSES, FramePacket, Track
 from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, OBJECT_MATCH_RGB,
                                 FrameEncoder, check_output_config, class_id, confirmed,
                                 track_label)

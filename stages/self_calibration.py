@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.errors import HeightpipeError
-from pipeline.packets import CameraInfo, Track
+from core.errors import HeightpipeError
+from core.packets import CameraInfo, Track
 from stages.calibration import (camera_from_pose, heights_from_foot_top, horizon_line,
                                 vertical_vanishing_point)
 

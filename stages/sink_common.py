@@ -9,9 +9,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.config import OutputConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import OBJECT_CLASSES, FramePacket, Track
+from core.config import OutputConfig
+from core.errors import ConfigError
+from core.packets import OBJECT_CLASSES, FramePacket, Track
 
 CLASS_COLORS_RGB = {"other": (200, 200, 200), "person": (255, 80, 80),
                     "cyclist": (255, 200, 0), "vehicle": (80, 160, 255)}

@@ -27,7 +27,7 @@ from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
-from pipeline.packets import Track
+from core.packets import Track
 
 SCHEMA_NAME = "heightpipe.TrackArray"
 _FILE_NAME = "heightpipe/track_array.proto"

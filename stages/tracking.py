@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.config import TrackingConfig
-from pipeline.packets import Detection, FeatureMatches, FramePacket, Track
+from core.config import TrackingConfig
+from core.packets import Detection, FeatureMatches, FramePacket, Track
 from stages.association import Region, assign, direction_mismatch, feature_votes, iou_matrix
 from stages.kalman import FilterFactory, HeightFilter, MotionFilter, MotionSnapshot, StatureWindow
 from stages.merged_blobs import split_by_predictions
@@ -540,6 +540,9 @@ class TrackingStage:
         packet.tracks = self.tracker.update(packet.detections, packet.matches, frame_size=(width, height),
                                             frame_interval_s=self._frame_interval(packet.frame.time_s))
         return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
 
     def _frame_interval(self, time_s: float) -> float | None:
         """Median source time between the recent processed frames (stride included; None at first)."""

@@ -14,8 +14,8 @@ import dataclasses
 import cv2
 import numpy as np
 
-from pipeline.errors import SourceError
-from pipeline.packets import CameraInfo, FramePacket
+from core.errors import SourceError
+from core.packets import CameraInfo, FramePacket
 
 
 class Undistorter:
@@ -52,3 +52,10 @@ class Undistorter:
         packet.camera = self.camera
         packet.image_valid = self.image_valid
         return packet
+
+    def prime(self, images: list[np.ndarray]) -> list[np.ndarray]:
+        """Look-ahead frames undistorted, so later stages are primed in the run's geometry."""
+        return [self.undistort(image) for image in images]
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""

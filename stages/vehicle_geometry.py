@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.packets import CameraInfo
+from core.packets import CameraInfo
 from stages.calibration import camera_centre, pixel_rays, pixel_to_ground
 
 # The lower outline's points are taken this high above the road: its ends are the bumpers' lower

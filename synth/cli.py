@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 TIMES = ("day", "low_sun", "dusk", "night")
 WEATHER = ("clear", "overcast", "fog", "rain")
@@ -93,6 +93,9 @@ def options_from(args, config) -> tuple:
 
 
 def main(args, config) -> int:
+    from core.extras import require
+
+    require("mujoco", "synth", "heightpipe synth")
     options, sequences, workers, seed = options_from(args, config)
     if args.preview:
         from synth.preview import contact_sheet

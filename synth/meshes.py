@@ -147,7 +147,8 @@ def _fromto_frame(fromto) -> tuple[np.ndarray, np.ndarray, float]:
     return (a + b) / 2, np.stack([x, y, z], 1), length / 2
 
 
-def tessellate(kind: str, size, pos=(0, 0, 0), quat=(1, 0, 0, 0), fromto=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def tessellate(kind: str, size, pos=(0, 0, 0), quat=(1, 0, 0, 0),
+               fromto=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertices, normals and faces of one primitive in its parent's frame."""
     rot = quat_to_matrix(quat)
     centre = np.asarray(pos, float)

@@ -6,8 +6,8 @@ Per sequence: one background pass with the mover geom group switched off. For th
 per-object visible fraction, "amodal" passes draw movers alone, in as few passes as keep
 their projected boxes apart, so each object's full silhouette is counted once.
 
-Facts this relies on are in /work/shared/notes/renderer.md (reversed-Z float depth scaled by
-``stat.extent``, ``mj_camlight`` to place cameras, segment ids index the scene's geoms).
+MuJoCo facts this relies on: depth is read back as reversed-Z floats scaled by ``stat.extent``,
+cameras are placed with ``mj_camlight``, and segmentation ids index the scene's geoms.
 """
 
 from __future__ import annotations

@@ -24,8 +24,6 @@ from synth.movers import Mover, make_cyclist, make_pedestrian, make_vehicle
 from synth.scene import LAYOUT_FAMILIES, Layout, Route, build_layout, car_colour
 from synth.weather import Environment, sample_environment
 
-SCENARIOS = ("", "occlusion")
-
 
 def derive_seed(*parts) -> int:
     """A stable 31-bit seed from any mix of ints and strings (independent of PYTHONHASHSEED)."""
@@ -262,7 +260,8 @@ def _add_random_movers(layout: Layout, camera: SynthCamera, rng: np.random.Gener
         lateral = float(rng.uniform(-route.width / 2, route.width / 2)) * 0.8
         for k in range(group):
             stature = _stature(rng)
-            offset = float(np.clip(lateral + (k - (group - 1) / 2) * 0.65, -route.width / 2 - 0.3, route.width / 2 + 0.3))
+            offset = float(np.clip(lateral + (k - (group - 1) / 2) * 0.65,
+                                   -route.width / 2 - 0.3, route.width / 2 + 0.3))
             movers.append(make_pedestrian(next_id, rng, stature, pts, offset,
                                           speed * (1.0 if group == 1 else 0.85), s0 + rng.uniform(-0.4, 0.4),
                                           yaw0=float(rng.uniform(-math.pi, math.pi))))

@@ -81,7 +81,7 @@ def write_truncated_avi(path: Path, frames: int = 40) -> Path:
 def make_sink_packet(index: int, with_maps: bool = True, with_ground: bool = True):
     """A 64x48 frame with a 1.72 m object for the sink tests; track 1 confirmed from frame 4,
     track 2 always, track 3 never. ``with_maps=False`` drops the height map and the matches."""
-    from pipeline.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
+    from core.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
 
     width, height_px = 64, 48
     rng = np.random.default_rng(index)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from heightnet.predict import HeightPredictor, height_to_png16, predict_to_folder
-from pipeline.errors import ConfigError, ModelError, SourceError
+from core.errors import ConfigError, ModelError, SourceError
 
 
 def test_export_matches_pytorch_and_carries_the_contract_metadata(exported_model):

@@ -11,8 +11,8 @@ from heightnet.export import export_checkpoint, export_model
 from heightnet.model import ExportedHeightNet, build_model
 from heightnet.onnx_weights import load_onnx_weights, module_path
 from heightnet.train import train
-from pipeline.config import TrainConfig
-from pipeline.errors import ModelError
+from core.config import TrainConfig
+from core.errors import ModelError
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,8 @@ import pytest
 
 from heightnet.checkpoint import load_checkpoint
 from heightnet.train import train
-from pipeline.config import TrainConfig
-from pipeline.errors import ConfigError
+from core.config import TrainConfig
+from core.errors import ConfigError
 
 
 def small_config(tmp_path, **changes):

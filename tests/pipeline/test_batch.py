@@ -14,7 +14,7 @@ import pytest
 
 from media import REPO_ROOT, default_sigint, make_tiny_height_model, write_moving_box_video
 
-from pipeline.config import Config
+from core.config import Config
 
 CLIP_FRAMES = [20, 25, 30, 35, 40, 45]
 LONG_CLIPS = 5
@@ -89,7 +89,7 @@ def test_local_batch_processes_every_clip_and_reports_the_corrupt_one(local_batc
 
 
 def test_each_video_gets_exactly_what_heightpipe_run_writes(local_batch, archive, model, tmp_path):
-    from pipeline.config import Config
+    from core.config import Config
     from pipeline.runner import run_pipeline
 
     out, _ = local_batch
@@ -259,7 +259,7 @@ def test_killed_half_way_then_resumed_without_redoing_finished_videos(long_archi
 
 def test_changed_file_is_redone_and_others_skipped(tmp_path, model):
     from pipeline.batch import BatchOptions, run_batch
-    from pipeline.config import Config
+    from core.config import Config
 
     config = Config()
     config.height.model = str(model)
@@ -277,7 +277,7 @@ def test_changed_file_is_redone_and_others_skipped(tmp_path, model):
 
 def test_what_a_rerun_redoes(tmp_path):
     from pipeline.batch_manifest import DONE, FAILED, InputIdentity, Manifest, ManifestEntry, config_fingerprint
-    from pipeline.config import Config
+    from core.config import Config
 
     identity = InputIdentity(100, 5, "abc")
     fingerprint = config_fingerprint(Config())
@@ -300,6 +300,9 @@ def test_what_a_rerun_redoes(tmp_path):
     assert reason("/a.mp4", ident=InputIdentity(100, 5, "abd")) == "file changed"
     changed = Config()
     changed.tracking.min_hits = 4
+    assert reason("/a.mp4", fp=config_fingerprint(changed)) == "config changed"
+    changed = Config()
+    changed.objects.min_area_px = 80
     assert reason("/a.mp4", fp=config_fingerprint(changed)) == "config changed"
     threads_only = Config()
     threads_only.height.threads, threads_only.output.progress = 1, False

@@ -1,13 +1,14 @@
-"""eval-tracks metrics on hand-made sequences (no generator needed), and against trackeval."""
+"""eval-tracks metrics and reports on hand-made sequences (no generator needed), and against trackeval."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pipeline.eval_tracks import (DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox,
-                                  _trackeval_metrics, evaluate, format_report, miss_breakdown, mot_data,
-                                  mot_metrics, objects_followed, occlusion_events, plot_height_series)
+from pipeline.eval_metrics import (_trackeval_metrics, evaluate, miss_breakdown, mot_data, mot_metrics,
+                                   occlusion_events)
+from pipeline.eval_reports import format_report, objects_followed, plot_height_series
+from pipeline.eval_sequences import DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox
 
 
 def _truth(object_id, x, visibility=1.0, height=1.75, cls="person"):
@@ -120,18 +121,6 @@ def test_objects_too_small_to_be_required_give_no_occlusion_events():
                           [] if 10 <= i < 20 else [_out(5 if i < 10 else 6, 10 + 2 * i)], []) for i in range(30)]
     assert len(occlusion_events(_run(frames), 0.3, 5)) == 1                  # 60 px boxes
     assert occlusion_events(_run(frames), 0.3, 5, min_box_px=80) == []      # don't-care for MOT too
-
-
-def test_true_heights_learn_no_network_scale():
-    """True height maps are metric and exact: the geometry stage must not rescale them, nor doubt
-    their scale, and the height filter gives them no per-object bias (the model's keep theirs)."""
-    from pipeline.config import Config
-    from pipeline.eval_tracks import build_eval_stages
-
-    stages = dict(build_eval_stages(object(), Config(), "oracle", geometry=True))
-    assert stages["geometry"].network_scale is None
-    assert stages["tracking"].tracker.config.network_bias_share == 0.0
-    assert Config().tracking.network_bias_share > 0.0
 
 
 def test_the_height_picture_pairs_each_track_with_the_object_it_follows(tmp_path):

@@ -9,8 +9,8 @@ import pytest
 from rerun.chunk import RrdReader
 
 from pipeline import cli
-from pipeline.config import OutputConfig
-from pipeline.packets import FramePacket
+from core.config import OutputConfig
+from core.packets import FramePacket
 from stages.mcap_sink import McapSink
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import CameraConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import CameraInfo
+from core.config import CameraConfig
+from core.errors import ConfigError
+from core.packets import CameraInfo
 from stages.calibration import (ASSUMED_CAMERA_HEIGHT_M, angles_from_rotation, camera_centre, camera_for_run,
                                 camera_from_pose, heights_from_foot_top, horizon_line, intrinsics_from_fov,
                                 is_calibrated, load_calibration, pixel_to_ground, project_points,
@@ -132,10 +132,10 @@ def kitti_objects():
 
 def box_corners_world(obj) -> np.ndarray:
     """The 3D box's 8 corners in the kitti_camera world of the object's own ground."""
-    h, w, l = obj["hwl"]
+    h, w, length = obj["hwl"]
     x0, y0, z0 = obj["location"]
     c, s = math.cos(obj["ry"]), math.sin(obj["ry"])
-    xs = np.array([1, 1, -1, -1, 1, 1, -1, -1]) * l / 2
+    xs = np.array([1, 1, -1, -1, 1, 1, -1, -1]) * length / 2
     zs = np.array([1, -1, -1, 1, 1, -1, -1, 1]) * w / 2
     ys = np.array([0, 0, 0, 0, -1, -1, -1, -1]) * h
     cam = np.stack([c * xs + s * zs + x0, ys + y0, -s * xs + c * zs + z0], axis=1)

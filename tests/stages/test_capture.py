@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from media import SHARED_REAL, write_truncated_avi
-from pipeline.config import CaptureConfig
-from pipeline.errors import SourceError
+from core.config import CaptureConfig
+from core.errors import SourceError
 from stages.capture import StreamSource, evenly_spaced, open_source
 
 TRAFFIC = SHARED_REAL / "traffic_bridge" / "car_traffic_small.mp4"

@@ -7,8 +7,8 @@ import csv
 import numpy as np
 import pytest
 
-from pipeline.errors import HeightpipeError
-from pipeline.packets import CameraInfo, Frame, FramePacket, Track
+from core.errors import HeightpipeError
+from core.packets import CameraInfo, Frame, FramePacket, Track
 from stages.csv_sink import TrackCsvSink
 
 HEADER = "frame,time_s,track_id,class,x,y,w,h,score,height_m,height_std_m,height_source"

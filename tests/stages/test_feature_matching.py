@@ -2,8 +2,8 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.config import GroundConfig, MatchingConfig
-from pipeline.packets import CameraInfo, Frame, FramePacket
+from core.config import GroundConfig, MatchingConfig
+from core.packets import CameraInfo, Frame, FramePacket
 from stages.feature_matching import FeatureMatcher
 
 

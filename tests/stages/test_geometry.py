@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import CameraConfig
-from pipeline.errors import SourceError
-from pipeline.packets import CameraInfo, Detection, Frame, FramePacket
+from core.config import CameraConfig
+from core.errors import SourceError
+from core.packets import CameraInfo, Detection, Frame, FramePacket
 from stages.calibration import (camera_for_run, camera_from_pose, heights_from_foot_top, intrinsics_from_fov,
                                 load_calibration, project_points, undistort_pixels)
 from stages.geometry import NETWORK_PRIOR_SCALE_NOISE, SCALE_MIN_SAMPLES, GeometryMeasurer

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from media import make_tiny_height_model
-from pipeline.config import GroundConfig
-from pipeline.errors import ModelError
-from pipeline.packets import CameraInfo, Frame, FramePacket
+from core.config import GroundConfig
+from core.errors import ModelError
+from core.packets import CameraInfo, Frame, FramePacket
 from stages.ground_segmentation import GroundSegmenter
 from stages.height_inference import HeightEstimator
 from stages.heightnet_model import SHIPPED_MODEL, HeightNetModel

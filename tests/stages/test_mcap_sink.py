@@ -19,8 +19,8 @@ from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory
 from rerun.chunk import RrdReader
 
-from pipeline.config import OutputConfig
-from pipeline.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
+from core.config import OutputConfig
+from core.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
 from stages.mcap_sink import McapSink
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -128,7 +128,7 @@ sys.path.insert(0, sys.argv[1])
 from pathlib import Path
 sys.path.insert(0, sys.argv[2])
 from test_mcap_sink import make_packet
-from pipeline.config import OutputConfig
+from core.config import OutputConfig
 from stages.mcap_sink import McapSink
 sink = McapSink(Path(sys.argv[3]), OutputConfig(flush_interval_s=1.0))
 for index in range(1000):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.config import TrackingConfig
-from pipeline.packets import Detection
+from core.config import TrackingConfig
+from core.packets import Detection
 from stages.association import iou_matrix
 from stages.merged_blobs import split_by_predictions
 from stages.tracking import ObjectTracker

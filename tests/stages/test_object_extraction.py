@@ -7,11 +7,11 @@ import time
 import numpy as np
 import pytest
 
-from pipeline.config import GroundConfig, TrackingConfig
-from pipeline.errors import ConfigError
-from pipeline.packets import CameraInfo, Detection, Frame, FramePacket
-from stages.object_extraction import (ObjectExtractor, coarse_class, fit_box_to_ends, foreground_ends,
-                                      moving_beyond_ends, seen_outline)
+from core.config import GroundConfig, ObjectsConfig
+from core.errors import ConfigError
+from core.packets import CameraInfo, Detection, Frame, FramePacket
+from stages.object_extraction import ObjectExtractor
+from stages.object_measurements import coarse_class, fit_box_to_ends, foreground_ends, moving_beyond_ends, seen_outline
 
 WIDTH, HEIGHT = 640, 360
 
@@ -61,7 +61,7 @@ def _walk(frames: int, start_x: int = 100, speed: int = 6, height_m: float = 1.7
 
 
 def test_moving_person_becomes_one_detection_with_its_height():
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     packet = _run(extractor, _walk(15))
     assert len(packet.detections) == 1          # the static building is not an object
     detection = packet.detections[0]
@@ -82,21 +82,21 @@ def test_moving_person_becomes_one_detection_with_its_height():
 
 def test_an_object_reaching_the_bottom_edge_has_its_foot_cut():
     walker_at_bottom = [[]] * 5 + [[(100 + 6 * i, HEIGHT - 100, 40, 100, 1.75)] for i in range(10)]
-    detection = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walker_at_bottom).detections[0]
+    detection = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), walker_at_bottom).detections[0]
     assert detection.touches_border and detection.foot_cut and not detection.top_cut
     assert np.isfinite(detection.height_noise_m)     # the network still sees its top
 
 
 def test_an_object_reaching_the_top_edge_has_no_usable_height():
     walker_at_top = [[]] * 5 + [[(100 + 6 * i, 0, 40, 100, 1.75)] for i in range(10)]
-    detection = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walker_at_top).detections[0]
+    detection = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), walker_at_top).detections[0]
     assert detection.top_cut and not detection.foot_cut and detection.height_noise_m == np.inf
 
 
 def test_a_walker_whose_height_map_ends_below_the_frame_top_has_no_usable_height():
     """The network called the upper body ground (Oxford: a white shirt at the frame's top): the
     blob is legs only, but the moving region goes on up to the edge, so its top is no head."""
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     walk = [[]] * 5 + [[(100 + 6 * i, 0, 40, 120, 1.75)] for i in range(10)]
     for index, people in enumerate(walk):
         image, heights, ground = _scene(index, people)
@@ -162,7 +162,7 @@ def test_the_black_border_of_an_undistorted_frame_cuts_like_the_frame_edge():
     valid = np.ones((HEIGHT, WIDTH), bool)
     valid[260:, :300] = False                        # the black region: below row 260, left of column 300
     walk = _walk(10, start_x=100, speed=6)           # feet at row 270, x 100..194: inside the black region
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     for index, people in enumerate(walk):
         image, heights, ground = _scene(index, people)
         packet = _packet(index, image, heights, ground)
@@ -171,7 +171,7 @@ def test_the_black_border_of_an_undistorted_frame_cuts_like_the_frame_edge():
     cut = packet.detections[0]
     assert cut.foot_cut and cut.touches_border
     # The same walk with the whole frame valid: nothing is cut.
-    whole = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), walk).detections[0]
+    whole = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), walk).detections[0]
     assert not (whole.foot_cut or whole.top_cut or whole.touches_border)
 
 
@@ -197,15 +197,15 @@ def test_a_primed_background_leaves_no_ghost_where_someone_stood_at_the_start():
                     found.append((index, d.box))
         return found
 
-    assert ghosts(ObjectExtractor(TrackingConfig(), GroundConfig()))
-    primed = ObjectExtractor(TrackingConfig(), GroundConfig())
+    assert ghosts(ObjectExtractor(ObjectsConfig(), GroundConfig()))
+    primed = ObjectExtractor(ObjectsConfig(), GroundConfig())
     primed.prime_background([frame(index)[0] for index in range(0, 30, 3)])
     assert ghosts(primed) == []
 
 
 def test_a_blob_whose_bottom_stands_above_the_ground_has_no_foot():
     """Only a head and shoulders moved (the legs are hidden): its lowest point is not a foot."""
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     frames = [[(100 + 6 * i, 150, 40, 120, 1.75)] for i in range(12)]
     for index, people in enumerate(frames):
         image, heights, ground = _scene(index, people)
@@ -218,14 +218,14 @@ def test_a_blob_whose_bottom_stands_above_the_ground_has_no_foot():
 
 def test_two_people_apart_are_two_detections():
     frames = [[(60 + 5 * i, 150, 40, 120, 1.6), (400 - 5 * i, 180, 40, 110, 1.9)] for i in range(12)]
-    packet = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), frames)
+    packet = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), frames)
     heights = sorted(d.height_m for d in packet.detections)
     assert heights == pytest.approx([1.6, 1.9], abs=0.06)
 
 
 def test_moving_ground_level_change_is_not_an_object():
     """A shadow or light patch moves (foreground) but stays on the ground (height 0)."""
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     for index in range(12):
         image, heights, ground = _scene(index, [], building=False)
         image[200:260, 50 + 10 * index:130 + 10 * index] = 20
@@ -234,32 +234,32 @@ def test_moving_ground_level_change_is_not_an_object():
 
 
 def test_without_height_map_foreground_alone_gives_detections_without_height():
-    packet = _run(ObjectExtractor(TrackingConfig(), GroundConfig()), _walk(12), with_height=False)
+    packet = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), _walk(12), with_height=False)
     assert len(packet.detections) == 1
     assert np.isnan(packet.detections[0].height_m)
     assert packet.detections[0].cls == "other"
 
 
 def test_background_none_uses_the_height_map_alone():
-    extractor = ObjectExtractor(TrackingConfig(background="none"), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(background="none"), GroundConfig())
     image, heights, ground = _scene(0, [(100, 150, 40, 120, 1.75)])
     packet = extractor.process(_packet(0, image, heights, ground))
     # The static 8 m building is above ground but taller than any mover: scenery, not an object.
     assert [round(d.height_m, 1) for d in packet.detections] == [1.8]
     assert packet.foreground is None
-    with_building = ObjectExtractor(TrackingConfig(background="none", max_object_height_m=10), GroundConfig())
+    with_building = ObjectExtractor(ObjectsConfig(background="none", max_object_height_m=10), GroundConfig())
     assert len(with_building.process(_packet(0, image, heights, ground)).detections) == 2
 
 
 @pytest.mark.parametrize("method", ["mog2", "cnt", "knn", "gsoc"])
 def test_every_background_method_finds_the_walker(method):
-    packet = _run(ObjectExtractor(TrackingConfig(background=method), GroundConfig()), _walk(15))
+    packet = _run(ObjectExtractor(ObjectsConfig(background=method), GroundConfig()), _walk(15))
     assert len(packet.detections) == 1
 
 
 def test_unknown_background_method_is_a_config_error():
-    with pytest.raises(ConfigError, match="tracking.background"):
-        ObjectExtractor(TrackingConfig(background="magic"), GroundConfig())
+    with pytest.raises(ConfigError, match="objects.background"):
+        ObjectExtractor(ObjectsConfig(background="magic"), GroundConfig())
 
 
 def test_coarse_classes():
@@ -271,7 +271,7 @@ def test_coarse_classes():
 
 
 def test_costs_a_few_milliseconds_at_640x360():
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     scenes = [_scene(i, people) for i, people in enumerate(_walk(30))]
     elapsed = []
     for index, (image, heights, ground) in enumerate(scenes):
@@ -282,62 +282,11 @@ def test_costs_a_few_milliseconds_at_640x360():
     assert np.median(elapsed) * 1000 < 15
 
 
-def test_merged_blob_splits_at_separate_height_peaks():
-    from stages.object_extraction import split_by_height_peaks
-
-    blob = np.zeros((60, 50), bool)
-    blob[:, 5:45] = True                                   # one foreground blob, two people wide
-    heights = np.zeros((60, 50), np.float32)
-    heights[:, 5:24] = np.linspace(1.6, 0.05, 60)[:, None]
-    heights[:, 26:45] = np.linspace(1.9, 0.05, 60)[:, None]
-    heights[40:, 24:26] = 0.3                              # legs touching low down
-    pieces = split_by_height_peaks(blob, heights, min_area=40)
-    assert len(pieces) == 2
-    tops = sorted(round(float(heights[p].max()), 1) for p in pieces)
-    assert tops == [1.6, 1.9]
-    single = np.zeros((60, 20), np.float32) + np.linspace(1.7, 0.05, 60)[:, None]
-    assert len(split_by_height_peaks(np.ones((60, 20), bool), single, min_area=40)) == 1
-
-
-def test_people_side_by_side_split_on_their_foreground():
-    """The grown blob bridges the gap between two walkers; their own foreground does not."""
-    from stages.object_extraction import split_by_foreground
-
-    blob = np.zeros((60, 50), bool)
-    blob[:, 3:47] = True
-    moving = np.zeros_like(blob)
-    moving[2:58, 6:22] = True                              # left person
-    moving[0:60, 26:44] = True                             # right person, four columns apart
-    moving[30:34, 4:6] = True                              # a hand: too small to seed anything
-    pieces = split_by_foreground(blob, moving, min_area=40)
-    assert len(pieces) == 2
-    left, right = sorted(pieces, key=lambda p: np.nonzero(p)[1].mean())
-    assert left[:, 6:22].all() and not left[:, 26:44].any()
-    assert right[:, 26:44].all() and not right[:, 6:22].any()
-    assert (left | right).sum() == blob.sum()              # every blob pixel goes to one of them
-
-
-def test_one_persons_stacked_fragments_and_a_car_stay_whole():
-    from stages.object_extraction import split_by_foreground
-
-    blob = np.ones((60, 20), bool)
-    coat_missed = np.zeros_like(blob)
-    coat_missed[0:12, 6:14] = True                         # head and shoulders
-    coat_missed[35:60, 4:16] = True                        # legs: the plain coat between is not foreground
-    assert len(split_by_foreground(blob, coat_missed, min_area=40)) == 1
-
-    car = np.ones((30, 90), bool)
-    halves = np.zeros_like(car)
-    halves[2:30, 2:40] = True                              # front and back of a car, wider than tall
-    halves[2:30, 48:88] = True
-    assert len(split_by_foreground(car, halves, min_area=40)) == 1
-
-
 def test_two_walkers_side_by_side_are_two_detections():
     """A smooth height map (like the network's) shows one hump; the foreground shows two people."""
     import cv2
 
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     frames = [[]] * 5 + [[(100 + 5 * i, 150, 40, 120, 1.7), (146 + 5 * i, 150, 40, 120, 1.7)]
                          for i in range(8)]
     for index, people in enumerate(frames):
@@ -351,11 +300,11 @@ def test_two_walkers_side_by_side_are_two_detections():
 
 def test_height_consistency_residual_raises_the_noise():
     """Points matched onto the person whose height changed between frames: trust this frame less."""
-    from pipeline.packets import FeatureMatches
+    from core.packets import FeatureMatches
 
     noises = {}
     for wobble in (0.0, 0.3):
-        extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+        extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
         for index, people in enumerate(_walk(12)):
             image, heights, ground = _scene(index, people)
             if people and index % 2:
@@ -372,7 +321,7 @@ def test_height_consistency_residual_raises_the_noise():
 
 def test_a_global_brightness_jump_is_not_foreground():
     """Auto exposure brightening the whole view (a bus fills half of it) must not flag every pixel."""
-    extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+    extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
     frames = _walk(20)
     for index, people in enumerate(frames):
         image, heights, ground = _scene(index, people, rng=np.random.default_rng(index))
@@ -381,49 +330,6 @@ def test_a_global_brightness_jump_is_not_foreground():
         packet = extractor.process(_packet(index, image, heights, ground))
     assert packet.foreground.mean() < 0.1
     assert [d.height_m for d in packet.detections] == [pytest.approx(1.75, abs=0.06)]
-
-
-def _person_shape(h: int = 24, w: int = 8) -> np.ndarray:
-    """A blocky walker: shoulders at a sixth of the height, a head a third as wide."""
-    shape = np.zeros((h, w), bool)
-    shape[h // 6:, :] = True
-    shape[:h // 6, w // 2 - w // 6:w // 2 + w // 6 + 1] = True
-    return shape
-
-
-def test_a_group_walking_shoulder_to_shoulder_splits_at_its_heads():
-    from stages.object_extraction import split_by_heads
-
-    group = np.hstack([_person_shape(), _person_shape(), _person_shape()])
-    pieces = split_by_heads(group, group, min_area=20)
-    assert [tuple(np.flatnonzero(p.any(axis=0))[[0, -1]]) for p in pieces] == [(0, 7), (8, 15), (16, 23)]
-
-
-def test_a_car_a_lone_walker_and_a_low_dip_stay_whole():
-    from stages.object_extraction import split_by_heads
-
-    car = np.zeros((14, 30), bool)
-    car[6:, :], car[:6, 8:22] = True, True                     # a cabin: one flat peak
-    assert len(split_by_heads(car, car, min_area=20)) == 1
-    walker = _person_shape()
-    assert len(split_by_heads(walker, walker, min_area=20)) == 1
-    bumps = np.ones((24, 24), bool)
-    bumps[0, 8:16] = False                                     # a one-row dip: not two heads
-    assert len(split_by_heads(bumps, bumps, min_area=20)) == 1
-
-
-def test_sensor_noise_specks_are_dropped_but_thin_legs_stay():
-    from stages.object_extraction import drop_small_pieces
-
-    mask = np.zeros((40, 40), bool)
-    mask[5:25, 10:16] = True                                   # a body ...
-    mask[25:35, 11] = mask[25:35, 14] = True                   # ... on one-pixel legs
-    mask[30, 30] = mask[2, 2] = True                          # single-pixel noise
-    mask[20:22, 35:37] = True                                  # a 4-pixel speck
-    kept = drop_small_pieces(mask, 8)
-    assert kept[5:35, 10:16].sum() == mask[5:35, 10:16].sum()
-    assert not kept[30, 30] and not kept[2, 2] and not kept[20:22, 35:37].any()
-
 
 
 def _group(x: int, y: int, count: int = 3) -> list[tuple[int, int, int, int, float]]:
@@ -444,7 +350,7 @@ def _run_blurred(extractor, frames):
 
 def test_a_group_walking_shoulder_to_shoulder_is_one_detection_per_person():
     frames = [[]] * 5 + [_group(100 + 5 * i, 150) for i in range(8)]
-    packet = _run_blurred(ObjectExtractor(TrackingConfig(), GroundConfig()), frames)
+    packet = _run_blurred(ObjectExtractor(ObjectsConfig(), GroundConfig()), frames)
     lefts = sorted(d.box[0] for d in packet.detections)
     assert len(lefts) == 3
     assert lefts[1:] == pytest.approx([135 + 40 + 7, 135 + 80 + 7], abs=10)   # cut at the shoulders' middle
@@ -454,7 +360,7 @@ def test_a_group_at_the_frame_top_stays_whole():
     """Where the frame's edge may cut a blob its outline is no row of heads (a truck's roof under
     rain streaks at a 3.5 m camera's top edge was split in three)."""
     frames = [[]] * 5 + [_group(100 + 5 * i, 0) for i in range(8)]
-    packet = _run_blurred(ObjectExtractor(TrackingConfig(), GroundConfig()), frames)
+    packet = _run_blurred(ObjectExtractor(ObjectsConfig(), GroundConfig()), frames)
     assert len(packet.detections) == 1
 
 
@@ -462,7 +368,7 @@ def test_the_foreground_does_not_depend_on_what_ran_before_in_the_process():
     """KNN samples with OpenCV's process-wide random generator; eval-tracks runs many sequences
     in one process and their results depended on the order."""
     def noisy_run(people_per_frame):
-        extractor = ObjectExtractor(TrackingConfig(), GroundConfig())
+        extractor = ObjectExtractor(ObjectsConfig(), GroundConfig())
         for index, people in enumerate(people_per_frame):
             image, heights, ground = _scene(index, people)
             noise = np.random.default_rng(index).normal(0, 12, image.shape)     # sensor noise
@@ -485,7 +391,7 @@ def test_a_noisy_night_camera_is_denoised_and_its_walker_stays_one_detection():
 
     assert not ObjectExtractor._noisy([clean])
     assert ObjectExtractor._noisy([noisy(clean), noisy(clean)])
-    config = TrackingConfig(work_width=0)
+    config = ObjectsConfig(work_width=0)
     extractor = ObjectExtractor(config, GroundConfig())
     extractor.prime_background([noisy(clean) for _ in range(5)])
     assert extractor._denoise

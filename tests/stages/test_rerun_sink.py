@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from pipeline.config import OutputConfig
-from pipeline.errors import ConfigError, HeightpipeError
-from pipeline.packets import FramePacket
+from core.config import OutputConfig
+from core.errors import ConfigError, HeightpipeError
+from core.packets import FramePacket
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder
 
@@ -126,7 +126,7 @@ def test_serve_mode_streams_and_still_writes_the_file(tmp_path):
         "import sys; sys.path[:0] = sys.argv[1:3] + [sys.argv[4]]\n"
         "from pathlib import Path\n"
         "from test_rerun_sink import make_packet\n"
-        "from pipeline.config import OutputConfig\n"
+        "from core.config import OutputConfig\n"
         "from stages.rerun_sink import RerunSink\n"
         "sink = RerunSink(Path(sys.argv[3]), 'serve', OutputConfig(), 'served')\n"
         "for i in range(3): sink.write(make_packet(i))\n"

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import CameraConfig, load_config
-from pipeline.packets import Detection, Frame, FramePacket, Track
+from core.config import CameraConfig, load_config
+from core.packets import Detection, Frame, FramePacket, Track
 from stages.calibration import (angles_from_rotation, camera_for_run, camera_from_pose, intrinsics_from_fov,
                                 is_calibrated, load_calibration, pixel_to_ground, project_points,
                                 undistort_pixels)
@@ -108,7 +108,8 @@ def test_upright_people_cue_estimates_the_focal_length():
     assert_within(result.height_m, 6.0, result.height_std_m, 3, 0.3)
     # Box-centre points carry no such cue: the focal length stays assumed.
     top[:, 0] = foot[:, 0]
-    boxes = self_calibrate(foot, top, ids, 1280, 720, true_K, settings=FitSettings(bootstrap=5, use_lean=True, point_noise_px=1.5))
+    boxes = self_calibrate(foot, top, ids, 1280, 720, true_K,
+                           settings=FitSettings(bootstrap=5, use_lean=True, point_noise_px=1.5))
     assert boxes.focal_source == "assumed"
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.config import TrackingConfig
-from pipeline.packets import CameraInfo, Detection, FeatureMatches, Frame, FramePacket
+from core.config import TrackingConfig
+from core.packets import CameraInfo, Detection, FeatureMatches, Frame, FramePacket
 from stages.association import assign, iou_matrix
 from stages.tracking import ObjectTracker, TrackingStage
 
@@ -226,14 +226,14 @@ def test_reupdate_after_gap_resets_drifted_velocity():
 
 def test_walker_reports_stature_not_mean_of_gait():
     rng = np.random.default_rng(3)
-    tracker = ObjectTracker(TrackingConfig(height_measurement_noise_m=0.01))
+    tracker = ObjectTracker(TrackingConfig())
     stature = 1.80
     for frame in range(80):
         dip = 0.04 * np.sin(np.pi * frame / 5.0) ** 2                    # hip drop, mean 2 cm
         tracks = tracker.update([_detection(20 + 3 * frame, 100, stature - dip + rng.normal(0, 0.01),
                                             noise_m=0.01)])
     with_window = tracks[0].height_m
-    plain = ObjectTracker(TrackingConfig(height_measurement_noise_m=0.01, stature_window=0))
+    plain = ObjectTracker(TrackingConfig(stature_window=0))
     rng = np.random.default_rng(3)
     for frame in range(80):
         dip = 0.04 * np.sin(np.pi * frame / 5.0) ** 2
@@ -452,7 +452,7 @@ def test_a_coasting_track_does_not_take_a_box_half_its_size():
     tracker = ObjectTracker(TrackingConfig(min_hits=1))
     cut = dict(height_m=float("nan"), noise_m=float("inf"), w=30, h=90)   # top cut: no height
     for frame in range(10):
-        tracks = tracker.update([_detection(100, 0, **cut)])
+        tracker.update([_detection(100, 0, **cut)])
     for frame in range(4):
         tracker.update([])
     legs = _detection(100, 60, 0.87, w=30, h=42)           # overlaps the lower third of the box

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.config import CameraConfig
-from pipeline.packets import Detection, Frame, FramePacket
+from core.config import CameraConfig
+from core.packets import Detection, Frame, FramePacket
 from stages.calibration import camera_from_pose, heights_from_foot_top, intrinsics_from_fov, project_points
 from stages.geometry import GeometryMeasurer
 from stages.vehicle_geometry import vehicle_box

@@ -23,7 +23,8 @@ def movers_fully_in_view(plan, t: float = 0.0, max_depth_m: float = 1e9) -> int:
         xy, _ = m.ground_pose(t)
         uv, z = plan.camera.project(np.array([[xy[0], xy[1], 0.0], [xy[0], xy[1], m.nominal_height_m]]))
         cam = plan.camera
-        if (z > 0).all() and z.max() < max_depth_m and (uv >= 1).all() and (uv[:, 0] < cam.width - 1).all() and (uv[:, 1] < cam.height - 1).all():
+        inside = (uv >= 1).all() and (uv[:, 0] < cam.width - 1).all() and (uv[:, 1] < cam.height - 1).all()
+        if (z > 0).all() and z.max() < max_depth_m and inside:
             count += 1
     return count
 

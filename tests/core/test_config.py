@@ -3,8 +3,8 @@ import tomllib
 
 import pytest
 
-from pipeline.config import DEFAULT_CONFIG_PATH, Config, load_config, parse_override
-from pipeline.errors import ConfigError
+from core.config import DEFAULT_CONFIG_PATH, Config, load_config, parse_override
+from core.errors import ConfigError
 
 
 def test_config_toml_documents_exactly_the_defaults():
@@ -46,12 +46,22 @@ def test_int_widens_to_float_but_bool_is_not_int(tmp_path):
 
 
 def test_overrides_win_and_parse_toml_values():
-    config = load_config(None, ["tracking.min_hits=7", "tracking.background=cnt", "output.mcap=false"])
+    config = load_config(None, ["tracking.min_hits=7", "objects.background=cnt", "output.mcap=false"])
     assert config.tracking.min_hits == 7
-    assert config.tracking.background == "cnt"
+    assert config.objects.background == "cnt"
     assert config.output.mcap is False
     with pytest.raises(ConfigError):
         parse_override("min_hits=7")
+
+
+@pytest.mark.parametrize("key", ["min_area_px", "background", "height_measurement_noise_m"])
+def test_a_moved_key_says_where_it_is_now(tmp_path, key):
+    path = tmp_path / "c.toml"
+    path.write_text(f"[tracking]\n{key} = 1\n")
+    with pytest.raises(ConfigError, match=rf"'tracking.{key}' .* has moved: it is 'objects.{key}' now"):
+        load_config(path)
+    with pytest.raises(ConfigError, match=rf"it is 'objects.{key}' now"):
+        load_config(None, [f"tracking.{key}=1"])
 
 
 def test_missing_config_file(tmp_path):

@@ -21,3 +21,7 @@ class SourceError(HeightpipeError):
 
 class ModelError(HeightpipeError):
     """A model file that is missing, unreadable or of the wrong shape."""
+
+
+class MissingExtraError(HeightpipeError):
+    """An optional dependency (an install extra: synth, train) that this command needs is missing."""

@@ -1,7 +1,7 @@
 """All configuration in one typed place.
 
 Each section of ``config.toml`` is a dataclass below; the dataclass defaults are the
-documented defaults (``tests/pipeline/test_config.py`` checks that ``config.toml`` agrees).
+documented defaults (``tests/core/test_config.py`` checks that ``config.toml`` agrees).
 Values come from, in increasing priority: these defaults, a TOML file, ``--set
 section.key=value`` overrides and the dedicated command-line flags.
 
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG_PATH = REPO_ROOT / "config.toml"
@@ -75,7 +75,9 @@ class MatchingConfig:
 
 
 @dataclass
-class TrackingConfig:
+class ObjectsConfig:
+    """Object extraction: moving, above-ground blobs of each frame become detections."""
+
     background: str = "knn"
     """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
     work_width: int = 320
@@ -96,6 +98,14 @@ class TrackingConfig:
     """Blobs less than this share foreground are clutter (rain or leaves over a static structure)."""
     min_foreground_piece_px: int = 8
     """Foreground pieces smaller than this (source pixels) are sensor noise, dropped before blobs are grown."""
+    height_measurement_noise_m: float = 0.15
+    """Base standard deviation of one frame's height measurement."""
+    consistency_gain: float = 1.0
+    """Matched points' height-change residual, times this, is added to the measurement noise."""
+
+
+@dataclass
+class TrackingConfig:
     min_hits: int = 2
     """Detections in a row before a track is confirmed (reported), at least ..."""
     confirm_s: float = 0.2
@@ -108,8 +118,6 @@ class TrackingConfig:
     """Minimum IoU for an association."""
     height_process_noise_m: float = 0.002
     """Per-frame random walk of the height state: near zero, objects do not grow."""
-    height_measurement_noise_m: float = 0.15
-    """Base standard deviation of one frame's height measurement."""
     network_bias_share: float = 0.3
     """Std of the network's bias on one object, as a share of its height (constant over frames)."""
     geometry_bias_factor: float = 1.0
@@ -123,8 +131,6 @@ class TrackingConfig:
     """A pair below iou_gate is still allowed when this share of the track's points votes for it."""
     height_gate_sigma: float = 4.0
     """Height measurements further than this many standard deviations from the track are outliers."""
-    consistency_gain: float = 1.0
-    """Matched points' height-change residual, times this, is added to the measurement noise."""
     stature_window: int = 10
     """Frames in a walker's stature window (upper quantile of recent heights; 0 = off)."""
     stature_quantile: float = 0.75
@@ -255,6 +261,7 @@ class Config:
     ground: GroundConfig = field(default_factory=GroundConfig)
     height: HeightConfig = field(default_factory=HeightConfig)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
+    objects: ObjectsConfig = field(default_factory=ObjectsConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
@@ -280,6 +287,10 @@ def _coerce(where: str, value: Any, annotation: Any) -> Any:
     return value
 
 
+MOVED_KEYS = {("tracking", f.name): "objects" for f in dataclasses.fields(ObjectsConfig)}
+"""(old section, key) -> the section that holds the key now (object extraction left [tracking])."""
+
+
 def _apply(config: Config, table: dict[str, Any], source: str) -> None:
     sections = {f.name: f for f in dataclasses.fields(Config)}
     for section_name, values in table.items():
@@ -291,6 +302,10 @@ def _apply(config: Config, table: dict[str, Any], source: str) -> None:
         section = getattr(config, section_name)
         hints = typing.get_type_hints(type(section))
         for key, value in values.items():
+            moved_to = MOVED_KEYS.get((section_name, key))
+            if moved_to is not None:
+                raise ConfigError(f"config key '{section_name}.{key}' in {source} has moved: "
+                                  f"it is '{moved_to}.{key}' now (section [{moved_to}])")
             if key not in hints:
                 raise ConfigError(f"unknown config key '{section_name}.{key}' in {source} "
                                   f"(known: {', '.join(hints)})")

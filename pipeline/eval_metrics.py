@@ -1,0 +1,462 @@
+"""Scores of tracked sequences against their ground truth: MOT metrics, height errors, occlusions, misses.
+
+* HOTA, MOTA, IDF1 and ID switches (class-agnostic boxes, IoU 0.5 for CLEAR / Identity),
+  computed by trackeval when the optional ``eval`` extra is installed and otherwise by the
+  built-in implementation below, which follows trackeval's code.
+* Height error per ground-truth object: the final height of the track that followed it versus
+  the truth, next to the single-frame estimates (detections) versus the truth.
+* Occlusions: objects hidden for a while and seen again, whether their track kept its id and
+  its height.
+* Misses: every required box by what became of it.
+
+Ground-truth boxes that are mostly hidden or too small are "don't care": neither required nor
+penalised, and a track box on one is dropped (as MOTChallenge does with occluded boxes).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from collections import Counter, defaultdict
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from core.errors import HeightpipeError
+from pipeline.eval_sequences import SequenceRun, TruthBox
+
+MATCH_IOU = 0.5
+HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
+
+
+# --------------------------------------------------------------------------------------------
+# MOT metrics: HOTA, CLEAR (MOTA, IDSW), Identity (IDF1)
+# --------------------------------------------------------------------------------------------
+
+def iou_matrix(boxes_a, boxes_b) -> np.ndarray:
+    from stages.association import iou_matrix as _iou
+
+    return _iou(boxes_a, boxes_b)
+
+
+def matched_at_iou(boxes_a, boxes_b) -> list[tuple[int, int]]:
+    """One-to-one (Hungarian on IoU) pairs of ``a`` and ``b`` indices whose IoU reaches ``MATCH_IOU``:
+    the matching of CLEAR and Identity, used for everything here that asks "which track is this"."""
+    from scipy.optimize import linear_sum_assignment
+
+    if len(boxes_a) == 0 or len(boxes_b) == 0:
+        return []
+    iou = iou_matrix(boxes_a, boxes_b)
+    return [(int(r), int(c)) for r, c in zip(*linear_sum_assignment(-iou)) if iou[r, c] >= MATCH_IOU]
+
+
+def cared_for(truth: TruthBox, min_visibility: float, min_box_px: float) -> bool:
+    """Whether a ground-truth box is required (else don't-care): visible enough and big enough."""
+    return truth.visibility >= min_visibility and truth.box[3] >= min_box_px
+
+
+def mot_data(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -> dict:
+    """One sequence in trackeval's per-sequence format, with don't-care boxes removed."""
+    from scipy.optimize import linear_sum_assignment
+
+    gt_ids, tracker_ids, similarity = [], [], []
+    for frame in run.frames:
+        cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
+        ignored = [t for t in frame.truth if not cared_for(t, min_visibility, min_box_px)]
+        outputs = [o for o in frame.tracks if o.updated]
+        if ignored and outputs:
+            # A track box that best explains a don't-care box is neither TP nor FP.
+            everything = cared + ignored
+            iou = iou_matrix([t.box for t in everything], [o.box for o in outputs])
+            rows, cols = linear_sum_assignment(-iou)
+            drop = {c for r, c in zip(rows, cols) if r >= len(cared) and iou[r, c] >= MATCH_IOU}
+            outputs = [o for i, o in enumerate(outputs) if i not in drop]
+        gt_ids.append([t.object_id for t in cared])
+        tracker_ids.append([o.track_id for o in outputs])
+        similarity.append(iou_matrix([t.box for t in cared], [o.box for o in outputs]))
+    gt_map = {g: i for i, g in enumerate(sorted({g for ids in gt_ids for g in ids}))}
+    tr_map = {g: i for i, g in enumerate(sorted({g for ids in tracker_ids for g in ids}))}
+    return {
+        "num_timesteps": len(run.frames),
+        "num_gt_ids": len(gt_map), "num_tracker_ids": len(tr_map),
+        "num_gt_dets": sum(len(ids) for ids in gt_ids),
+        "num_tracker_dets": sum(len(ids) for ids in tracker_ids),
+        "gt_ids": [np.array([gt_map[g] for g in ids], dtype=int) for ids in gt_ids],
+        "tracker_ids": [np.array([tr_map[g] for g in ids], dtype=int) for ids in tracker_ids],
+        "similarity_scores": similarity,
+    }
+
+
+def _trackeval_metrics():
+    """trackeval's metric objects, or None when the optional extra is not installed."""
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):   # it prints about optional datasets
+            from trackeval.metrics import CLEAR, HOTA, Identity
+            return {"HOTA": HOTA(), "CLEAR": CLEAR({"THRESHOLD": MATCH_IOU, "PRINT_CONFIG": False}),
+                    "Identity": Identity({"THRESHOLD": MATCH_IOU, "PRINT_CONFIG": False})}
+    except ImportError:
+        return None
+
+
+def mot_metrics(datas: list[dict], use_trackeval: bool | None = None) -> dict:
+    """Combined HOTA / CLEAR / Identity over sequences (trackeval if available and allowed)."""
+    return mot_metrics_by_group(datas, {}, use_trackeval)[0]
+
+
+def mot_metrics_by_group(datas: list[dict], groups: dict[str, list[int]],
+                         use_trackeval: bool | None = None) -> tuple[dict, dict[str, dict]]:
+    """``mot_metrics`` over all sequences, and over each group of them (indices into ``datas``).
+
+    Each sequence is scored once; the groups only combine its parts.
+    """
+    metrics = _trackeval_metrics() if use_trackeval in (None, True) else None
+    if use_trackeval and metrics is None:
+        raise HeightpipeError("trackeval is not installed (pip install --no-deps trackeval==1.3.0)")
+    if metrics is not None:
+        parts = [{name: metric.eval_sequence(d) for name, metric in metrics.items()} for d in datas]
+        combiners = {name: (lambda chosen, metric=metric: metric.combine_sequences(
+            {str(i): part for i, part in enumerate(chosen)})) for name, metric in metrics.items()}
+        engine = "trackeval"
+    else:
+        parts = [{"HOTA": _hota(d), "CLEAR": _clear(d), "Identity": _identity(d)} for d in datas]
+        combiners = {"HOTA": _combine_hota, "CLEAR": _combine_clear, "Identity": _combine_identity}
+        engine = "built-in"
+
+    def combined(indices) -> dict:
+        scores = {name: combine([parts[i][name] for i in indices]) for name, combine in combiners.items()}
+        hota, clear, identity = scores["HOTA"], scores["CLEAR"], scores["Identity"]
+        return {
+            "engine": engine,
+            "HOTA": float(np.mean(hota["HOTA"])), "DetA": float(np.mean(hota["DetA"])),
+            "AssA": float(np.mean(hota["AssA"])),
+            "MOTA": float(clear["MOTA"]), "IDSW": int(clear["IDSW"]), "IDF1": float(identity["IDF1"]),
+            "gt_dets": int(clear["CLR_TP"] + clear["CLR_FN"]), "false_positives": int(clear["CLR_FP"]),
+            "misses": int(clear["CLR_FN"]),
+        }
+
+    return combined(range(len(datas))), {group: combined(indices) for group, indices in groups.items()}
+
+
+def _hota(data: dict) -> dict:
+    """HOTA for one sequence, as trackeval.metrics.HOTA computes it (Luiten et al., IJCV 2021)."""
+    n_alpha = len(HOTA_ALPHAS)
+    res = {k: np.zeros(n_alpha) for k in ("TP", "FN", "FP", "AssA")}
+    if data["num_tracker_dets"] == 0 or data["num_gt_dets"] == 0:
+        res["FN"][:] = data["num_gt_dets"]
+        res["FP"][:] = data["num_tracker_dets"]
+        return res
+    from scipy.optimize import linear_sum_assignment
+
+    potential = np.zeros((data["num_gt_ids"], data["num_tracker_ids"]))
+    gt_count = np.zeros((data["num_gt_ids"], 1))
+    tr_count = np.zeros((1, data["num_tracker_ids"]))
+    for gt, tr, sim in zip(data["gt_ids"], data["tracker_ids"], data["similarity_scores"]):
+        denominator = sim.sum(0)[None, :] + sim.sum(1)[:, None] - sim
+        sim_iou = np.where(denominator > np.finfo(float).eps, sim / np.maximum(denominator, 1e-12), 0.0)
+        potential[gt[:, None], tr[None, :]] += sim_iou
+        gt_count[gt] += 1
+        tr_count[0, tr] += 1
+    alignment = potential / (gt_count + tr_count - potential)
+    matches = [np.zeros_like(potential) for _ in HOTA_ALPHAS]
+    for gt, tr, sim in zip(data["gt_ids"], data["tracker_ids"], data["similarity_scores"]):
+        if len(gt) == 0 or len(tr) == 0:
+            res["FP"] += len(tr)
+            res["FN"] += len(gt)
+            continue
+        rows, cols = linear_sum_assignment(-(alignment[gt[:, None], tr[None, :]] * sim))
+        for a, alpha in enumerate(HOTA_ALPHAS):
+            ok = sim[rows, cols] >= alpha - np.finfo(float).eps
+            res["TP"][a] += ok.sum()
+            res["FN"][a] += len(gt) - ok.sum()
+            res["FP"][a] += len(tr) - ok.sum()
+            matches[a][gt[rows[ok]], tr[cols[ok]]] += 1
+    for a in range(n_alpha):
+        ass = matches[a] / np.maximum(1, gt_count + tr_count - matches[a])
+        res["AssA"][a] = np.sum(matches[a] * ass) / max(1.0, res["TP"][a])
+    return res
+
+
+def _combine_hota(parts: list[dict]) -> dict:
+    tp = sum(p["TP"] for p in parts)
+    fn = sum(p["FN"] for p in parts)
+    fp = sum(p["FP"] for p in parts)
+    ass_a = sum(p["AssA"] * p["TP"] for p in parts) / np.maximum(1e-10, tp)
+    det_a = tp / np.maximum(1, tp + fn + fp)
+    return {"HOTA": np.sqrt(det_a * ass_a), "DetA": det_a, "AssA": ass_a}
+
+
+def _clear(data: dict) -> dict:
+    """CLEAR MOT counts for one sequence, as trackeval.metrics.CLEAR counts them."""
+    from scipy.optimize import linear_sum_assignment
+
+    res = {"TP": 0, "FN": 0, "FP": 0, "IDSW": 0}
+    last_tracker = np.full(data["num_gt_ids"], np.nan)       # for ID switches (any gap)
+    previous_frame = np.full(data["num_gt_ids"], np.nan)     # for continuing matches
+    for gt, tr, sim in zip(data["gt_ids"], data["tracker_ids"], data["similarity_scores"]):
+        if len(gt) == 0 or len(tr) == 0:
+            res["FP"] += len(tr)
+            res["FN"] += len(gt)
+            if len(gt) and not len(tr):
+                previous_frame[:] = np.nan
+            continue
+        score = 1000.0 * (tr[None, :] == previous_frame[gt[:, None]]) + sim
+        score[sim < MATCH_IOU - np.finfo(float).eps] = 0
+        rows, cols = linear_sum_assignment(-score)
+        ok = score[rows, cols] > np.finfo(float).eps
+        matched_gt, matched_tr = gt[rows[ok]], tr[cols[ok]]
+        before = last_tracker[matched_gt]
+        res["IDSW"] += int(np.sum(~np.isnan(before) & (matched_tr != before)))
+        last_tracker[matched_gt] = matched_tr
+        previous_frame[:] = np.nan
+        previous_frame[matched_gt] = matched_tr
+        res["TP"] += len(matched_gt)
+        res["FN"] += len(gt) - len(matched_gt)
+        res["FP"] += len(tr) - len(matched_gt)
+    return res
+
+
+def _combine_clear(parts: list[dict]) -> dict:
+    total = {k: sum(p[k] for p in parts) for k in ("TP", "FN", "FP", "IDSW")}
+    mota = (total["TP"] - total["FP"] - total["IDSW"]) / max(1, total["TP"] + total["FN"])
+    return {"MOTA": mota, "IDSW": total["IDSW"], "CLR_TP": total["TP"], "CLR_FN": total["FN"],
+            "CLR_FP": total["FP"]}
+
+
+def _identity(data: dict) -> dict:
+    """IDTP of the best one-to-one id mapping (maximising IDTP minimises IDFN + IDFP)."""
+    from scipy.optimize import linear_sum_assignment
+
+    potential = np.zeros((data["num_gt_ids"], data["num_tracker_ids"]))
+    for gt, tr, sim in zip(data["gt_ids"], data["tracker_ids"], data["similarity_scores"]):
+        g, t = np.nonzero(sim >= MATCH_IOU)
+        potential[gt[g], tr[t]] += 1
+    idtp = 0.0
+    if potential.size:
+        rows, cols = linear_sum_assignment(-potential)
+        idtp = float(potential[rows, cols].sum())
+    return {"IDTP": idtp, "gt": data["num_gt_dets"], "tr": data["num_tracker_dets"]}
+
+
+def _combine_identity(parts: list[dict]) -> dict:
+    idtp = sum(p["IDTP"] for p in parts)
+    total = sum(p["gt"] + p["tr"] for p in parts)
+    return {"IDF1": 2 * idtp / max(1, total)}
+
+
+# --------------------------------------------------------------------------------------------
+# Height errors per ground-truth object
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class ObjectHeight:
+    sequence: str
+    object_id: int
+    cls: str
+    camera_height_m: float
+    weather: str
+    true_height_m: float
+    matched_frames: int
+    tracked_height_m: float | None
+    """Final height of the track that followed the object (None: never tracked)."""
+    tracked_std_m: float | None
+    track_ids: list[int]
+    single_frame_errors_m: list[float]
+
+
+def object_heights(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -> list[ObjectHeight]:
+    """Per ground-truth object: its track's final height, and every single-frame estimate."""
+    truth_heights: dict[int, list[float]] = defaultdict(list)
+    classes: dict[int, str] = {}
+    track_votes: dict[int, dict[int, int]] = defaultdict(lambda: defaultdict(int))
+    last_height: dict[tuple[int, int], tuple[float, float]] = {}
+    single: dict[int, list[float]] = defaultdict(list)
+    for frame in run.frames:
+        for t in frame.truth:
+            truth_heights[t.object_id].append(t.height_m)
+            classes[t.object_id] = t.cls
+        cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
+        if not cared:
+            continue
+        outputs = [o for o in frame.tracks if o.updated]
+        for r, c in matched_at_iou([t.box for t in cared], [o.box for o in outputs]):
+            key = (cared[r].object_id, outputs[c].track_id)
+            track_votes[key[0]][key[1]] += 1
+            last_height[key] = (outputs[c].height_m, outputs[c].height_std_m)
+        for r, c in matched_at_iou([t.box for t in cared], [d.box for d in frame.detections]):
+            if np.isfinite(frame.detections[c].height_m):
+                single[cared[r].object_id].append(frame.detections[c].height_m)
+    results = []
+    for object_id, heights in truth_heights.items():
+        # Stature: the gait's hip drop only lowers the head, so the truth is the largest value.
+        true_height = float(np.max(heights))
+        votes = track_votes.get(object_id, {})
+        main_track = max(votes, key=votes.get) if votes else None
+        tracked = last_height.get((object_id, main_track)) if main_track is not None else None
+        results.append(ObjectHeight(
+            sequence=run.name, object_id=object_id, cls=classes[object_id],
+            camera_height_m=run.camera_height_m, weather=run.weather, true_height_m=true_height,
+            matched_frames=int(sum(votes.values())),
+            tracked_height_m=None if tracked is None else float(tracked[0]),
+            tracked_std_m=None if tracked is None else float(tracked[1]),
+            track_ids=sorted(votes),
+            single_frame_errors_m=[float(h - true_height) for h in single.get(object_id, [])],
+        ))
+    return results
+
+
+def height_summary(objects: list[ObjectHeight], min_frames: int) -> dict:
+    """Median absolute errors, tracked vs single-frame, for the objects tracked long enough."""
+    usable = [o for o in objects if o.tracked_height_m is not None and np.isfinite(o.tracked_height_m)
+              and o.matched_frames >= min_frames]
+    tracked = [abs(o.tracked_height_m - o.true_height_m) for o in usable]
+    single = [abs(e) for o in usable for e in o.single_frame_errors_m]
+    return {
+        "objects": len(usable),
+        "tracked_median_error_m": float(np.median(tracked)) if tracked else None,
+        "tracked_p90_error_m": float(np.percentile(tracked, 90)) if tracked else None,
+        "tracked_median_bias_m": (float(np.median([o.tracked_height_m - o.true_height_m for o in usable]))
+                                  if usable else None),
+        "single_frame_median_error_m": float(np.median(single)) if single else None,
+        "single_frames": len(single),
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Occlusions: hidden for a while, seen again
+# --------------------------------------------------------------------------------------------
+
+def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames: int,
+                     min_box_px: float = 0.0) -> list[dict]:
+    """Objects tracked, then hidden (visibility < 0.1) for a while, then tracked again: same id?
+
+    Before and after, the object must be required as the MOT metrics require it (``cared_for``):
+    a car a few pixels high on the horizon is don't-care there, and no occlusion event here.
+    """
+    history: dict[int, list[tuple[int, float, bool, int | None, float | None]]] = defaultdict(list)
+    for index, frame in enumerate(run.frames):
+        outputs = [o for o in frame.tracks if o.updated]
+        matched = {frame.truth[r].object_id: outputs[c]
+                   for r, c in matched_at_iou([t.box for t in frame.truth], [o.box for o in outputs])}
+        for t in frame.truth:
+            out = matched.get(t.object_id)
+            history[t.object_id].append((index, t.visibility, cared_for(t, min_visibility, min_box_px),
+                                         out.track_id if out else None, out.height_m if out else None))
+    events = []
+    for object_id, rows in history.items():
+        hidden_run, before = 0, None
+        for index, visibility, required, track_id, height in rows:
+            if visibility < 0.1:
+                hidden_run += 1
+                continue
+            if required and track_id is not None:
+                if hidden_run >= min_hidden_frames and before is not None:
+                    events.append({"sequence": run.name, "object_id": object_id,
+                                   "hidden_frames": hidden_run, "id_before": before[0],
+                                   "id_after": track_id, "kept_id": before[0] == track_id,
+                                   "height_before_m": before[1], "height_after_m": height})
+                before = (track_id, height)
+                # Only a match ends the occlusion: an object seen again but not yet re-found
+                # (or found by a new track only later) is still an event, kept or not.
+                hidden_run = 0
+    return events
+
+
+# --------------------------------------------------------------------------------------------
+# Misses: why a required object had no track box
+# --------------------------------------------------------------------------------------------
+
+MISS_KINDS = ("tracked", "detected, no track", "merged with others", "box off", "not detected")
+# A detection overlapping a truth box at least this much (IoU) is about that object, if off.
+MISS_NEAR_IOU = 0.2
+# A detection covering this share of another object's box holds that object too.
+MISS_COVER_SHARE = 0.3
+
+
+def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: float = 0.0) -> dict[str, dict]:
+    """Every required truth box, by what became of it, per group (class, box height, time of day,
+    weather, camera height): tracked (a track box at IoU >= 0.5); detected but no track there;
+    its detection merged with other objects; its detection's box off (IoU 0.2-0.5); not detected.
+
+    It says where the missing HOTA is: in detection (the height map and the foreground) or in
+    tracking.
+    """
+    from stages.association import intersection_matrix
+
+    counts: dict[str, Counter] = defaultdict(Counter)
+    for run in runs:
+        for frame in run.frames:
+            cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
+            if not cared:
+                continue
+            outputs = [o for o in frame.tracks if o.updated]
+            tracked = {r for r, _ in matched_at_iou([t.box for t in cared], [o.box for o in outputs])}
+            detections = [d.box for d in frame.detections]
+            visible = [t.box for t in frame.truth if t.visibility > 0.05]
+            near = iou_matrix([t.box for t in cared], detections) if detections else np.zeros((len(cared), 0))
+            for i, truth in enumerate(cared):
+                best = int(np.argmax(near[i])) if near.shape[1] else -1
+                overlap = near[i, best] if best >= 0 else 0.0
+                if i in tracked:
+                    kind = "tracked"
+                elif overlap >= MATCH_IOU:
+                    kind = "detected, no track"
+                elif overlap >= MISS_NEAR_IOU:
+                    areas = np.array([b[2] * b[3] for b in visible], dtype=float)
+                    cover = intersection_matrix(visible, [detections[best]])[:, 0] / np.maximum(areas, 1e-9)
+                    kind = "merged with others" if (cover > MISS_COVER_SHARE).sum() >= 2 else "box off"
+                else:
+                    kind = "not detected"
+                h = truth.box[3]
+                size = "< 40" if h < 40 else ("40-80" if h < 80 else ">= 80")
+                for group in ("all", f"class {truth.cls}", f"box {size} px", f"{run.time_of_day}",
+                              f"weather {run.weather}", f"camera at {run.camera_height_m:.1f} m"):
+                    counts[group][kind] += 1
+    return {group: {kind: int(c[kind]) for kind in MISS_KINDS} for group, c in counts.items()}
+
+
+# --------------------------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------------------------
+
+def sequence_groups(runs: list[SequenceRun]) -> dict[str, list[int]]:
+    """Indices of the runs in each group a sequence belongs to whole: camera height, weather, time of day.
+
+    Tracking is scored per group too, because it is lost unevenly (rain at night, a high
+    camera's small people) and the overall number hides where.
+    """
+    groups: dict[str, list[int]] = defaultdict(list)
+    for index, run in enumerate(runs):
+        for group in (f"camera at {run.camera_height_m:.1f} m", f"weather {run.weather}", run.time_of_day):
+            groups[group].append(index)
+    return dict(sorted(groups.items()))
+
+
+def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: int = 10,
+             use_trackeval: bool | None = None, min_box_px: float = 0.0) -> dict:
+    datas = [mot_data(run, min_visibility, min_box_px) for run in runs]
+    groups = sequence_groups(runs)
+    mot, mot_by_group = mot_metrics_by_group(datas, groups, use_trackeval)
+    mot_by_group = {group: dict(scores, sequences=len(groups[group])) for group, scores in mot_by_group.items()}
+    objects = [o for run in runs for o in object_heights(run, min_visibility, min_box_px)]
+    events = [e for run in runs for e in occlusion_events(run, min_visibility, min_hidden_frames=5,
+                                                          min_box_px=min_box_px)]
+    by_class = {cls: height_summary([o for o in objects if o.cls == cls], min_frames)
+                for cls in sorted({o.cls for o in objects})}
+    by_camera = {f"{h:.1f}": height_summary([o for o in objects if round(o.camera_height_m, 1) == h], min_frames)
+                 for h in sorted({round(o.camera_height_m, 1) for o in objects})}
+    by_weather = {w: height_summary([o for o in objects if o.weather == w], min_frames)
+                  for w in sorted({o.weather for o in objects})}
+    return {
+        "min_visibility": min_visibility, "min_box_px": min_box_px, "min_frames": min_frames,
+        "sequences": [r.name for r in runs],
+        "frames": sum(len(r.frames) for r in runs),
+        "mot": mot,
+        "mot_by_group": mot_by_group,
+        "height_all": height_summary(objects, min_frames),
+        "height_by_class": by_class,
+        "height_by_camera_height": by_camera,
+        "height_by_weather": by_weather,
+        "occlusions": events,
+        "misses": miss_breakdown(runs, min_visibility, min_box_px),
+        "objects": [asdict(o) for o in objects],
+    }

@@ -1,0 +1,178 @@
+"""Running ``heightpipe run``'s stages over one generator sequence, keeping what evaluation needs.
+
+A sequence of a synthetic dataset (``synth.dataset``) goes through the same stage chain as a
+video (``pipeline.stage_chain``), with the dataset's exact camera; each frame leaves a
+``FrameRecord``: the ground-truth boxes, the confirmed tracks and the detections.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from core.config import Config
+
+# Generator classes in the tracker's coarse terms.
+COARSE_CLASS = {"pedestrian": "person", "cyclist": "cyclist", "car": "vehicle", "van": "vehicle",
+                "truck": "vehicle", "bus": "vehicle"}
+
+
+@dataclass
+class TruthBox:
+    object_id: int
+    cls: str
+    """Coarse class: person, cyclist, vehicle."""
+    box: tuple[float, float, float, float]
+    visibility: float
+    height_m: float
+
+
+@dataclass
+class OutputBox:
+    track_id: int
+    box: tuple[float, float, float, float]
+    height_m: float
+    height_std_m: float
+    cls: str
+    height_source: str
+    updated: bool
+
+
+@dataclass
+class DetectionBox:
+    box: tuple[float, float, float, float]
+    height_m: float
+
+
+@dataclass
+class FrameRecord:
+    truth: list[TruthBox]
+    tracks: list[OutputBox]
+    """Confirmed tracks, updated or predicted."""
+    detections: list[DetectionBox]
+
+
+@dataclass
+class SequenceRun:
+    name: str
+    camera_height_m: float
+    weather: str
+    time_of_day: str
+    fps: float = 0.0
+    frames: list[FrameRecord] = field(default_factory=list)
+
+
+class OracleHeights:
+    """Stand-in for ground segmentation + height inference: the generator's true maps."""
+
+    def __init__(self, sequence):
+        self.sequence = sequence
+
+    def process(self, packet):
+        truth = self.sequence.frame(packet.frame.index)
+        packet.height_map = np.nan_to_num(truth.height_m, nan=0.0).astype(np.float32)
+        packet.ground_mask = truth.ground.astype(bool)
+        return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
+
+
+def camera_info(sequence):
+    from core.packets import CameraInfo
+
+    camera = sequence.meta.camera
+    return CameraInfo(width=camera.width, height=camera.height, K=np.asarray(camera.K, float),
+                      R=np.asarray(camera.R, float), t=np.asarray(camera.t, float).reshape(3),
+                      height_m=float(camera.height_m), source="calibration")
+
+
+def build_eval_chain(sequence, config: Config, heights: str, geometry: bool):
+    """``heightpipe run``'s stages for a generator sequence (``pipeline.stage_chain``).
+
+    With ``heights="oracle"`` the true height and ground maps stand in for the network, and the
+    stages that correct the network's scale and bias are told there is none to correct.
+    """
+    from pipeline.stage_chain import build_stage_chain
+
+    if heights == "oracle":
+        # True heights are metric: there is no network scale to learn (nor to doubt), nor a
+        # per-object bias for the height filter to learn.
+        config = replace(config, camera=replace(config.camera, rescale_network=False),
+                         tracking=replace(config.tracking, network_bias_share=0.0))
+    return build_stage_chain(config, camera_info(sequence),
+                             heights=OracleHeights(sequence) if heights == "oracle" else None,
+                             geometry=geometry)
+
+
+def prime_sequence_background(sequence, chain, config: Config) -> None:
+    """Seeds the object extractor's background model as ``heightpipe run`` does for files."""
+    import cv2
+
+    from stages.capture import background_indices
+
+    chain.prime([cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR)
+                 for i in background_indices(len(sequence), sequence.meta.fps,
+                                             config.objects.background_prime_frames,
+                                             config.objects.background_prime_s)])
+
+
+def sequence_packets(sequence, chain, max_frames: int = 0):
+    """Each frame of a generator sequence through the stage chain: yields (truth frame, packet).
+
+    The stages are closed when the frames run out or the caller closes the generator.
+    """
+    import cv2
+
+    from core.packets import Frame, FramePacket
+
+    camera = camera_info(sequence)
+    count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
+    try:
+        for index in range(count):
+            truth_frame = sequence.frame(index)
+            image = cv2.cvtColor(truth_frame.rgb, cv2.COLOR_RGB2BGR)
+            yield truth_frame, chain.process(FramePacket(frame=Frame(index, truth_frame.time_s, image), camera=camera))
+    finally:
+        chain.close()
+
+
+def run_sequence(sequence, config: Config, heights: str = "model", geometry: bool = True,
+                 max_frames: int = 0, record: Path | None = None) -> SequenceRun:
+    """Runs the tracking pipeline over one generator sequence and keeps what evaluation needs."""
+    meta = sequence.meta
+    run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
+    chain = build_eval_chain(sequence, config, heights, geometry)
+    prime_sequence_background(sequence, chain, config)
+    sink = _open_recording(record, config, sequence.name) if record else None
+    start = time.perf_counter()
+    try:
+        with contextlib.closing(sequence_packets(sequence, chain, max_frames)) as packets:
+            for _, packet in packets:
+                if sink is not None:
+                    sink.write(packet)
+                run.frames.append(FrameRecord(
+                    truth=[TruthBox(o.id, COARSE_CLASS.get(o.cls, "other"), tuple(map(float, o.box)),
+                                    float(o.visible_fraction), float(o.height_m))
+                           for o in sequence.objects(packet.frame.index)],
+                    tracks=[OutputBox(t.track_id, tuple(map(float, t.box)), t.height_m, t.height_std_m,
+                                      t.cls, t.height_source, t.updated)
+                            for t in packet.tracks if t.confirmed],
+                    detections=[DetectionBox(tuple(map(float, d.box)), d.height_m) for d in packet.detections],
+                ))
+    finally:
+        if sink is not None:
+            sink.close()
+    run.fps = len(run.frames) / max(time.perf_counter() - start, 1e-9)
+    return run
+
+
+def _open_recording(path: Path, config: Config, name: str):
+    from stages.rerun_sink import RerunSink
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return RerunSink(path, "save", config.output, name)

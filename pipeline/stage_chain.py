@@ -1,0 +1,123 @@
+"""The one place the stages are assembled and the one loop that passes a frame through them.
+
+``heightpipe run``, ``eval-tracks``, ``calibrate`` and the benchmarks all build their stages
+with ``build_stage_chain`` and push frames through ``StageChain.process``, so what is measured
+in evaluation is what runs in production. The order is the one docs/design.md lists:
+
+(undistortion) → ground segmentation → height inference → feature matching → object
+extraction → (geometry) → tracking
+
+Undistortion runs when the camera has lens distortion; geometry when the camera is calibrated
+(its ground plane is known) and the caller wants it. Evaluation on generator data may replace
+ground segmentation and height inference with the true maps (``heights=``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from core.config import Config
+from core.packets import CameraInfo, Frame, FramePacket
+from core.stage import PrimedStage, Stage
+
+
+@dataclass
+class StageChain:
+    """Named stages run in order on every frame; each stage's time goes into ``packet.timings_ms``."""
+
+    stages: list[tuple[str, Stage]]
+
+    def prime(self, images: list[np.ndarray]) -> None:
+        """Show frames read ahead to the stages that want them (undistortion first, then objects)."""
+        for _, stage in self.stages:
+            if isinstance(stage, PrimedStage):
+                images = stage.prime(images)
+
+    def process(self, packet: FramePacket) -> FramePacket:
+        for name, stage in self.stages:
+            t0 = time.perf_counter()
+            packet = stage.process(packet)
+            packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
+        return packet
+
+    def run(self, frames: Iterable[Frame], camera: CameraInfo) -> Iterator[FramePacket]:
+        """Each frame's packet after all stages, one at a time."""
+        for frame in frames:
+            yield self.process(FramePacket(frame=frame, camera=camera))
+
+    def stage(self, name: str) -> Stage:
+        return dict(self.stages)[name]
+
+    def without(self, name: str) -> "StageChain":
+        """The same chain less one stage (a benchmark that stops before tracking)."""
+        return StageChain([(n, s) for n, s in self.stages if n != name])
+
+    def close(self) -> None:
+        close_all([stage for _, stage in self.stages])
+
+
+def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None = None,
+                      geometry: bool = True) -> StageChain:
+    """The stages for this camera and configuration.
+
+    Parameters
+    ----------
+    config : Config
+        Every stage reads its own section.
+    camera : CameraInfo
+        The run's camera: lens distortion adds undistortion, a known ground plane adds geometry.
+    heights : Stage, optional
+        Stand-in for ground segmentation and height inference (evaluation with the generator's
+        true maps); by default the shipped network fills both.
+    geometry : bool
+        Fuse the calibrated-camera geometry height where the camera allows it.
+    """
+    from stages.calibration import has_distortion, is_calibrated
+    from stages.feature_matching import FeatureMatcher
+    from stages.object_extraction import ObjectExtractor
+    from stages.tracking import TrackingStage
+
+    stages: list[tuple[str, Stage]] = []
+    if heights is None:
+        from stages.ground_segmentation import GroundSegmenter
+        from stages.height_inference import HeightEstimator
+        from stages.heightnet_model import HeightNetModel
+
+        model = HeightNetModel(config.height.model, config.height.threads)
+        height_stages = [("ground", GroundSegmenter(config.ground, model)), ("height", HeightEstimator(model))]
+    else:
+        height_stages = [("heights", heights)]
+    if has_distortion(camera):
+        from stages.undistortion import Undistorter
+
+        stages.append(("undistortion", Undistorter(camera)))
+    stages += height_stages
+    stages += [
+        ("matching", FeatureMatcher(config.matching, config.ground)),
+        ("objects", ObjectExtractor(config.objects, config.ground)),
+    ]
+    if geometry and is_calibrated(camera):
+        from stages.geometry import GeometryMeasurer
+
+        stages.append(("geometry", GeometryMeasurer(config.camera)))
+    stages.append(("tracking", TrackingStage(config.tracking)))
+    return StageChain(stages)
+
+
+def close_all(parts: list[object]) -> None:
+    """Close every part even if one fails, so one broken sink cannot cost the others' files."""
+    errors = []
+    for part in parts:
+        close = getattr(part, "close", None)
+        if close is None:
+            continue
+        try:
+            close()
+        except Exception as exc:  # re-raised below, after the others are closed
+            errors.append(exc)
+    if errors:
+        raise errors[0]
