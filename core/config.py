@@ -203,6 +203,9 @@ class SynthConfig:
 
 @dataclass
 class TrainConfig:
+    formulation: str = "contact"
+    """'contact': HeightNet v2, configured by [train_v2]; 'log_height': the v1 network (the shipped
+    model's formulation), configured by the keys below."""
     seed: int = 0
     """Seeds weights, data order and augmentation: same seed and data, same model."""
     data: str = "data/synth_train"
@@ -248,6 +251,69 @@ class TrainConfig:
 
 
 @dataclass
+class TrainV2Config:
+    """HeightNet v2 (ground-contact offsets + camera heads): ``heightpipe train`` when
+    ``train.formulation = "contact"``. The run folder is meant to be committed: training
+    accumulates over working days on machines that are not kept."""
+
+    seed: int = 0
+    """Seeds weights, data order and augmentation."""
+    data: str = "data/v2_train"
+    """Synth dataset of training cameras (its 'train' split)."""
+    data_command: str = ("heightpipe synth --out data/v2_train --sequences 1200 --frames 2 "
+                         "--size 640x480,640x360 --seed 11 --split train --workers 2")
+    """How ``data`` is made; run by ``heightpipe train`` when the folder is missing (fresh clone)."""
+    sequences: int = 0
+    """Train on the first N sequences by name (0 = all)."""
+    test_data: str = "data/v2_test"
+    """Held-out synth dataset (its 'test' split) for the learning curve; "" = none."""
+    test_command: str = ("heightpipe synth --out data/v2_test --preset paper --sequences 100 --frames 2 "
+                         "--size 640x480 --seed 12 --split test --workers 2")
+    """How ``test_data`` is made when it is missing."""
+    test_sequences: int = 50
+    """Held-out sequences scored at each evaluation (first N by name, 0 = all)."""
+    out: str = "heightnet/state/v2"
+    """Run folder: checkpoint.pt (weights + float16 optimiser moments), log.csv, curve.csv."""
+    input_width: int = 320
+    input_height: int = 240
+    """Network input (multiples of 32); whole frames are squashed to it, as at run time."""
+    steps: int = 1500
+    """Optimiser steps in total (a resumed run continues to this count)."""
+    batch_size: int = 4
+    """Pairs of consecutive frames per step (2x images)."""
+    lr: float = 1e-3
+    """AdamW learning rate after a 200-step warm-up (constant: lower it when the curve flattens)."""
+    weight_decay: float = 1e-4
+    threads: int = 2
+    """Torch CPU threads."""
+    trunk: str = "plain"
+    """'plain' (3x3 convolutions) or 'depthwise' (MobileNetV2 blocks; ~10x slower to train here)."""
+    widths: list[int] = field(default_factory=lambda: [16, 32, 64, 128])
+    """Encoder channels at 1/2, 1/4, 1/8, 1/16 of the input."""
+    camera_channels: bool = False
+    """CAM-Conv input channels from a known camera (the network then needs the camera to run)."""
+    crop_probability: float = 0.0
+    """Share of samples that are native-resolution windows around a mover (else whole frames)."""
+    max_matches: int = 64
+    """Matched points per frame pair for the height-consistency loss."""
+    checkpoint_every: int = 250
+    log_every: int = 20
+    eval_every: int = 250
+    """Steps between held-out evaluations (rows of curve.csv)."""
+    offset_all_weight: float = 0.3
+    """Offset loss on every labelled pixel (the object-weighted mover term has weight 1)."""
+    height_weight: float = 10.0
+    """Metric height (m, Huber) on mover pixels decoded with the true camera."""
+    si_weight: float = 1.0
+    """The paper's scale-invariant log loss on decoded mover heights."""
+    consistency_weight: float = 1.0
+    """The paper's height consistency (Eq. 2, m^2) at matched points of frames t-1, t."""
+    ground_weight: float = 0.2
+    camera_weight: float = 0.1
+    """Gaussian NLL of the camera heads (pitch, roll, focal length; whole frames only)."""
+
+
+@dataclass
 class BatchConfig:
     workers: int = 0
     """Parallel videos (0 = one per core)."""
@@ -267,6 +333,7 @@ class Config:
     output: OutputConfig = field(default_factory=OutputConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
+    train_v2: TrainV2Config = field(default_factory=TrainV2Config)
     batch: BatchConfig = field(default_factory=BatchConfig)
 
 

@@ -1,4 +1,10 @@
-"""`heightpipe train`: train HeightNet on a synth dataset ([train] config), resumable."""
+"""`heightpipe train`: train HeightNet on synth data, resumable.
+
+``train.formulation = "contact"`` (default) trains HeightNet v2 ([train_v2], ``heightnet/contact_train.py``),
+whose run folder is committed so that ``heightpipe train --resume`` continues on a fresh clone:
+missing synth data is rendered first with the configured commands. ``"log_height"`` trains the
+v1 network of the shipped model ([train]).
+"""
 
 from __future__ import annotations
 
@@ -23,6 +29,12 @@ def main(args: argparse.Namespace, config) -> int:
 
     for module in ("torch", "matplotlib"):
         require(module, "train", "heightpipe train")
+    if config.train.formulation == "contact":
+        return train_v2(args, config)
+    if config.train.formulation != "log_height":
+        from core.errors import ConfigError
+
+        raise ConfigError(f"train.formulation must be 'contact' or 'log_height', got {config.train.formulation!r}")
     from heightnet.data import build_cache, dataset_hash
     from heightnet.train import train
     from core.errors import ConfigError
@@ -48,4 +60,50 @@ def main(args: argparse.Namespace, config) -> int:
     result = train(train_config, cached, data_hash, resume=args.resume,
                    progress=not args.no_progress, max_steps=args.max_steps or None)
     print(f"step {result.steps}: checkpoint {result.checkpoint}; log {Path(train_config.out) / 'log.csv'}")
+    return 0
+
+
+def train_v2(args: argparse.Namespace, config) -> int:
+    """HeightNet v2: render missing data, cache it, train or resume, print where things are."""
+    import dataclasses
+    import shlex
+
+    from core.errors import ConfigError
+    from heightnet.contact_data import build_contact_cache
+    from heightnet.contact_train import train_contact
+    from synth.dataset import list_sequences
+
+    v2 = dataclasses.replace(config.train_v2, data=args.data or config.train_v2.data,
+                             out=args.out or config.train_v2.out)
+    progress = not args.no_progress
+
+    def cached(root: str, command: str, split: str, count: int):
+        folder = Path(root)
+        if not (folder / "manifest.json").is_file():
+            if not command:
+                raise ConfigError(f"no synth dataset at {folder} and no command to make it")
+            words = shlex.split(command)
+            if words[:2] != ["heightpipe", "synth"]:
+                raise ConfigError(f"a data command must be a 'heightpipe synth ...' command, got {command!r}")
+            print(f"{folder} is missing: rendering it first ({command})")
+            from pipeline.cli import main as heightpipe
+
+            status = heightpipe(words[1:] + ([] if progress else ["--no-progress"]))
+            if status:
+                raise ConfigError(f"rendering {folder} failed (exit {status})")
+        sequences = sorted(list_sequences(folder, split=split), key=lambda s: s.name)
+        if not sequences:
+            raise ConfigError(f"{folder} has no {split}-split sequences")
+        return build_contact_cache(sequences[:count or None], folder / ".contact_cache", progress=progress)
+
+    train_set = cached(v2.data, v2.data_command, "train", v2.sequences)
+    held_out = cached(v2.test_data, v2.test_command, "test", v2.test_sequences) if v2.test_data else []
+    try:
+        result = train_contact(v2, train_set, held_out, resume=args.resume, progress=progress,
+                               max_steps=args.max_steps or None)
+    except (FileExistsError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+    out = Path(v2.out)
+    print(f"step {result['step']} ({result['images']} images): state {out / 'checkpoint.pt'}; "
+          f"losses {out / 'log.csv'}; held-out curve {out / 'curve.csv'}")
     return 0

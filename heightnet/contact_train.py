@@ -20,13 +20,13 @@ import dataclasses
 import json
 import math
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 import torch
 
+from core.config import TrainV2Config
 from heightnet.contact_data import ContactPairDataset, ContactSampling, ContactSequence
 from heightnet.contact_eval import evaluate, scores_row
 from heightnet.contact_losses import ContactLossWeights, contact_loss
@@ -37,38 +37,22 @@ LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "
 WARMUP_STEPS = 200
 
 
-@dataclass
-class ContactTrainConfig:
-    out: str = "runs/contact"
-    seed: int = 0
-    input_width: int = 320
-    input_height: int = 240
-    steps: int = 2000
-    batch_size: int = 4               # pairs of consecutive frames per step (8 images)
-    lr: float = 1e-3
-    weight_decay: float = 1e-4
-    threads: int = 2
-    trunk: str = "plain"
-    widths: tuple[int, ...] = (16, 32, 64, 128)
-    camera_channels: bool = False
-    crop_probability: float = 0.0
-    max_matches: int = 64
-    checkpoint_every: int = 200
-    log_every: int = 20
-    eval_every: int = 600
-    loss: ContactLossWeights = field(default_factory=ContactLossWeights)
-
-    def architecture(self) -> ContactArchitecture:
-        return ContactArchitecture(self.trunk, tuple(self.widths), 2 if self.camera_channels else 0)
+def architecture_of(config: TrainV2Config) -> ContactArchitecture:
+    return ContactArchitecture(config.trunk, tuple(config.widths), 2 if config.camera_channels else 0)
 
 
-def learning_rate(step: int, config: ContactTrainConfig) -> float:
+def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
+    return ContactLossWeights(config.offset_all_weight, config.height_weight, config.si_weight,
+                              config.consistency_weight, config.ground_weight, config.camera_weight)
+
+
+def learning_rate(step: int, config: TrainV2Config) -> float:
     """Linear warm-up, then constant: an open-ended run that accumulates over days has no end
     to decay towards (lower ``lr`` in the config when the curve flattens)."""
     return config.lr * min(1.0, (step + 1) / WARMUP_STEPS)
 
 
-def train_contact(config: ContactTrainConfig, sequences: Sequence[ContactSequence],
+def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                   held_out: Sequence[ContactSequence] = (), resume: bool = False,
                   progress: bool = True, max_steps: int | None = None) -> dict[str, Any]:
     """Train until ``config.steps`` (``max_steps``: at most this many in this call)."""
@@ -79,7 +63,7 @@ def train_contact(config: ContactTrainConfig, sequences: Sequence[ContactSequenc
     run_dir.mkdir(parents=True, exist_ok=True)
     checkpoint_path = run_dir / "checkpoint.pt"
     torch.manual_seed(config.seed)
-    net = ContactNet(config.architecture())
+    net = ContactNet(architecture_of(config))
     optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     step, images = 0, 0
     if checkpoint_path.is_file():
@@ -93,6 +77,7 @@ def train_contact(config: ContactTrainConfig, sequences: Sequence[ContactSequenc
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
                                  config.max_matches, config.seed)
     per_epoch = max(1, len(dataset) // config.batch_size)
+    loss_weights = loss_weights_of(config)
     end = config.steps if max_steps is None else min(config.steps, step + max_steps)
     log = _CsvLog(run_dir / "log.csv", ["step", "images", "lr", *LOSS_FIELDS, "images_per_s"])
     curve = _CsvLog(run_dir / "curve.csv", None)
@@ -111,7 +96,7 @@ def train_contact(config: ContactTrainConfig, sequences: Sequence[ContactSequenc
                 group["lr"] = learning_rate(step, config)
             channels = batch["camera_channels"].flatten(0, 1) if "camera_channels" in batch else None
             offsets, ground, camera = net(batch["image"].flatten(0, 1), channels)
-            losses = contact_loss(offsets, ground, camera, batch, config.loss)
+            losses = contact_loss(offsets, ground, camera, batch, loss_weights)
             optimiser.zero_grad(set_to_none=True)
             losses["total"].backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
@@ -148,7 +133,7 @@ def train_contact(config: ContactTrainConfig, sequences: Sequence[ContactSequenc
 
 
 def save_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer, step: int,
-               images: int, config: ContactTrainConfig) -> None:
+               images: int, config: TrainV2Config) -> None:
     """Atomically write the compact state: weights in float32, Adam moments in float16."""
     opt = optimiser.state_dict()
     # state_dict() hands out the live per-parameter dicts: build new ones, never edit those.
@@ -170,13 +155,13 @@ def _compact(key: str, value: Any) -> Any:
 
 
 def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer | None,
-               config: ContactTrainConfig | None = None) -> tuple[int, int]:
+               config: TrainV2Config | None = None) -> tuple[int, int]:
     state = torch.load(path, map_location="cpu", weights_only=False)
     if config is not None:
-        if state["architecture"] != config.architecture().to_dict() or \
+        if state["architecture"] != architecture_of(config).to_dict() or \
                 state["input_size"] != [config.input_width, config.input_height]:
             raise ValueError(f"cannot resume {path}: it holds {state['architecture']} at "
-                             f"{state['input_size']}, the config asks for {config.architecture().to_dict()} "
+                             f"{state['input_size']}, the config asks for {architecture_of(config).to_dict()} "
                              f"at {[config.input_width, config.input_height]}")
     net.load_state_dict(state["model"])
     if optimiser is not None:

@@ -3,6 +3,7 @@
     python -m heightnet.recipe cache --train DIR --test DIR [--sequences N]
     python -m heightnet.recipe run ARM --train DIR --test DIR [--sequences N] [--steps S] [--out DIR]
     python -m heightnet.recipe table [--out DIR]
+    python -m heightnet.recipe speed [--threads 2]    # training images/s of each arm's network
 
 Arms differ from ``base`` (plain 3x3 trunk, whole frames, RGB only) in one thing each:
 ``depthwise`` (MobileNetV2 inverted residuals, parameter count within 0.1 %), ``crops``
@@ -44,7 +45,7 @@ def load(root: str, sequences: int | None, split: str):
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m heightnet.recipe", description=__doc__.split("\n")[0])
-    parser.add_argument("command", choices=["cache", "run", "table"])
+    parser.add_argument("command", choices=["cache", "run", "table", "speed"])
     parser.add_argument("arm", nargs="?", choices=list(ARMS))
     parser.add_argument("--train", default="data/v2_train")
     parser.add_argument("--test", default="data/v2_test")
@@ -58,6 +59,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "table":
         print_table(Path(args.out))
         return 0
+    if args.command == "speed":
+        print_speed(args.threads)
+        return 0
     train = load(args.train, args.sequences, "train")
     test = load(args.test, args.test_sequences, "test")
     if args.command == "cache":
@@ -65,12 +69,46 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.arm is None:
         parser.error("run needs an ARM")
-    from heightnet.contact_train import ContactTrainConfig, train_contact
+    from core.config import TrainV2Config
+    from heightnet.contact_train import train_contact
 
-    config = ContactTrainConfig(out=str(Path(args.out) / args.arm), steps=args.steps, threads=args.threads,
-                                eval_every=args.eval_every, checkpoint_every=args.eval_every, **ARMS[args.arm])
+    config = TrainV2Config(out=str(Path(args.out) / args.arm), steps=args.steps, threads=args.threads,
+                           eval_every=args.eval_every, checkpoint_every=args.eval_every, **ARMS[args.arm])
     train_contact(config, train, test, resume=True, progress=False)
     return 0
+
+
+def print_speed(threads: int, steps: int = 6, batch_pairs: int = 4) -> None:
+    """Images/s of one training step (forward, loss-free backward, AdamW) per arm's network at
+    320x240, random inputs: the networks' own cost, without data loading."""
+    import time
+
+    import torch
+
+    from core.config import TrainV2Config
+    from heightnet.contact_model import ContactNet, count_parameters
+    from heightnet.contact_train import architecture_of
+
+    torch.set_num_threads(threads)
+    print(f"| arm | parameters | training images/s ({threads} threads) |\n|---|---|---|")
+    for arm, changes in ARMS.items():
+        if arm == "crops":
+            continue   # same network as base
+        torch.manual_seed(0)
+        net = ContactNet(architecture_of(TrainV2Config(**changes)))
+        optimiser = torch.optim.AdamW(net.parameters())
+        images = torch.randn(2 * batch_pairs, 3, 240, 320)
+        channels = torch.randn(2 * batch_pairs, 2, 240, 320) if net.arch.camera_channels else None
+        best = float("inf")
+        for step in range(steps):
+            start = time.perf_counter()
+            offsets, ground, camera = net(images, channels)
+            (offsets.square().mean() + ground.mean() + camera.square().mean()).backward()
+            optimiser.step()
+            optimiser.zero_grad()
+            if step:   # the first step pays for allocation
+                best = min(best, time.perf_counter() - start)
+        print(f"| {arm} | {count_parameters(net):,} | {2 * batch_pairs / best:.1f} |")
 
 
 def print_table(out: Path) -> None:

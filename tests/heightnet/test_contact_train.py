@@ -14,7 +14,8 @@ from stages.ground_contact import heights_from_offsets
 from heightnet.contact_data import ContactPairDataset, ContactSampling, build_contact_cache
 from heightnet.contact_eval import evaluate
 from heightnet.contact_export import export_contact
-from heightnet.contact_train import ContactTrainConfig, load_state, train_contact
+from core.config import TrainV2Config
+from heightnet.contact_train import architecture_of, load_state, train_contact
 from heightnet.contact_model import ContactNet
 
 
@@ -24,10 +25,10 @@ def contact_sequences(tmp_path_factory):
                                tmp_path_factory.mktemp("contact_cache"))
 
 
-def small_config(out, **kw) -> ContactTrainConfig:
-    return ContactTrainConfig(out=str(out), input_width=64, input_height=64, steps=4, batch_size=2,
+def small_config(out, **kw) -> TrainV2Config:
+    return TrainV2Config(out=str(out), input_width=64, input_height=64, steps=4, batch_size=2,
                               threads=1, checkpoint_every=2, log_every=1, eval_every=2,
-                              widths=(8, 8, 16, 16), **kw)
+                              widths=[8, 8, 16, 16], **kw)
 
 
 @pytest.mark.parametrize("sampling", [ContactSampling(), ContactSampling(crop_probability=1.0),
@@ -83,7 +84,7 @@ def test_training_logs_losses_and_the_held_out_curve(contact_sequences, tmp_path
     assert len(curve) == 3 and "rmse_cm" in curve[0]
     total = [float(row.split(",")[3]) for row in log[1:]]
     assert all(math.isfinite(v) for v in total)
-    net = ContactNet(small_config(tmp_path).architecture())
+    net = ContactNet(architecture_of(small_config(tmp_path)))
     step, images = load_state(tmp_path / "run" / "checkpoint.pt", net, None)
     assert (step, images) == (4, 16)
     assert (tmp_path / "run" / "checkpoint.pt").stat().st_size < 1_000_000
@@ -116,7 +117,7 @@ def test_evaluation_of_exact_offsets_and_camera_scores_near_zero(contact_sequenc
     assert not answers
     assert exact.rmse_cm["all"] < 5 and exact.rmse_heads_cm["all"] < 5
     assert exact.pitch_error_deg < 1e-3 and exact.focal_error_pct < 1e-3
-    untrained = evaluate(ContactNet(small_config("x").architecture()), contact_sequences, width, height)
+    untrained = evaluate(ContactNet(architecture_of(small_config("x"))), contact_sequences, width, height)
     assert untrained.rmse_cm["all"] > 50
 
 
