@@ -169,8 +169,8 @@ class OutputConfig:
     """Write PREFIX.mcap."""
     csv: bool = True
     """Write PREFIX.tracks.csv."""
-    jpeg_quality: int = 85
-    """JPEG quality of the frames stored in the recordings."""
+    jpeg_quality: int = 75
+    """JPEG quality of the frames stored in the recordings (75: MCAP under 2 GB per hour of the 640x360 sample)."""
     mcap_chunk_size: int = 1048576
     """MCAP chunk size in bytes: smaller chunks lose less on a hard kill."""
     flush_interval_s: float = 1.0
@@ -277,13 +277,15 @@ class TrainV2Config:
     input_width: int = 320
     input_height: int = 240
     """Network input (multiples of 32); whole frames are squashed to it, as at run time."""
-    steps: int = 1500
-    """Optimiser steps in total (a resumed run continues to this count)."""
+    steps: int = 200000
+    """Optimiser steps in total (a resumed run continues to this count; open-ended by design)."""
     batch_size: int = 4
     """Pairs of consecutive frames per step (2x images)."""
     lr: float = 1e-3
     """AdamW learning rate after a 200-step warm-up (constant: lower it when the curve flattens)."""
     weight_decay: float = 1e-4
+    ema_decay: float = 0.999
+    """Decay of the weights' moving average, which is evaluated and exported (0 = the last step's)."""
     threads: int = 2
     """Torch CPU threads."""
     trunk: str = "plain"
@@ -292,7 +294,7 @@ class TrainV2Config:
     """Encoder channels at 1/2, 1/4, 1/8, 1/16 of the input."""
     camera_channels: bool = False
     """CAM-Conv input channels from a known camera (the network then needs the camera to run)."""
-    crop_probability: float = 0.0
+    crop_probability: float = 0.5
     """Share of samples that are native-resolution windows around a mover (else whole frames)."""
     max_matches: int = 64
     """Matched points per frame pair for the height-consistency loss."""

@@ -3,8 +3,9 @@
 A 2-core CPU supplies training volume only if training accumulates over working days, and the
 machine is not kept between them. So the run folder is meant to live in git:
 
-* ``checkpoint.pt`` — the weights (float32) and AdamW's moments (stored as float16, restored
-  to float32: a few MB for a 0.5 M-parameter network), the step, images seen, the data order;
+* ``checkpoint.pt`` — the weights and their moving average (float32) and AdamW's moments
+  (stored as float16, restored to float32): a few MB for a 0.5 M-parameter network; the step
+  and images seen (the data order follows from them);
 * ``log.csv`` — training losses every ``log_every`` steps;
 * ``curve.csv`` — held-out scores (``heightnet/contact_eval.py``) every ``eval_every`` steps,
   against images seen: the learning curve.
@@ -15,6 +16,7 @@ and epoch) and learning rate (a function of the step), so nothing else must surv
 
 from __future__ import annotations
 
+import copy
 import csv
 import dataclasses
 import json
@@ -65,11 +67,12 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     torch.manual_seed(config.seed)
     net = ContactNet(architecture_of(config))
     optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    ema = copy.deepcopy(net)
     step, images = 0, 0
     if checkpoint_path.is_file():
         if not resume:
             raise FileExistsError(f"{checkpoint_path} exists: resume it or choose another output folder")
-        step, images = load_state(checkpoint_path, net, optimiser, config)
+        step, images = load_state(checkpoint_path, net, optimiser, config, ema)
     (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
 
     sampling = ContactSampling(crop_probability=config.crop_probability,
@@ -101,6 +104,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             losses["total"].backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
             optimiser.step()
+            update_average(ema, net, config.ema_decay)
             step += 1
             images += 2 * len(items)
             tick_images += 2 * len(items)
@@ -119,28 +123,42 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                            "images_per_s": f"{rate:.2f}"})
                 sums, counted, tick, tick_images = {}, 0, time.time(), 0
             if held_out and (step % config.eval_every == 0 or step == end):
-                scores = evaluate(net, held_out, config.input_width, config.input_height)
+                scores = evaluate(ema, held_out, config.input_width, config.input_height)
                 curve.write({"step": step, "images": images,
                              **{k: f"{v:.2f}" for k, v in scores_row(scores).items()}})
                 tick = time.time()   # evaluation time is not training throughput
             if step % config.checkpoint_every == 0 or step == end:
-                save_state(checkpoint_path, net, optimiser, step, images, config)
+                save_state(checkpoint_path, net, optimiser, step, images, config, ema)
     finally:
         bar.close()
         log.close()
         curve.close()
-    return {"step": step, "images": images, "net": net}
+    return {"step": step, "images": images, "net": net, "ema": ema}
+
+
+def update_average(ema: torch.nn.Module, net: torch.nn.Module, decay: float) -> None:
+    """Exponential moving average of the weights (and BatchNorm statistics): at a constant
+    learning rate the last iterate wanders, and its held-out scores with it; the average is
+    what is evaluated and exported."""
+    with torch.no_grad():
+        for averaged, current in zip(ema.state_dict().values(), net.state_dict().values()):
+            if averaged.dtype.is_floating_point:
+                averaged.mul_(decay).add_(current, alpha=1 - decay)
+            else:
+                averaged.copy_(current)
 
 
 def save_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer, step: int,
-               images: int, config: TrainV2Config) -> None:
-    """Atomically write the compact state: weights in float32, Adam moments in float16."""
+               images: int, config: TrainV2Config, ema: torch.nn.Module | None = None) -> None:
+    """Atomically write the compact state: weights and their average in float32, Adam moments in
+    float16."""
     opt = optimiser.state_dict()
     # state_dict() hands out the live per-parameter dicts: build new ones, never edit those.
     opt["state"] = {index: {key: _compact(key, value) for key, value in state.items()}
                     for index, state in opt["state"].items()}
     tmp = path.with_suffix(".tmp")
-    torch.save({"model": net.state_dict(), "optimiser": opt, "step": step, "images": images,
+    torch.save({"model": net.state_dict(), "ema": (ema or net).state_dict(), "optimiser": opt,
+                "step": step, "images": images,
                 "architecture": net.arch.to_dict(), "input_size": [config.input_width, config.input_height],
                 "config": dataclasses.asdict(config)}, tmp)
     tmp.replace(path)
@@ -155,7 +173,9 @@ def _compact(key: str, value: Any) -> Any:
 
 
 def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer | None,
-               config: TrainV2Config | None = None) -> tuple[int, int]:
+               config: TrainV2Config | None = None, ema: torch.nn.Module | None = None) -> tuple[int, int]:
+    """Restore a state into ``net`` (and ``optimiser``, ``ema``); a state written before the
+    average existed starts the average from its weights."""
     state = torch.load(path, map_location="cpu", weights_only=False)
     if config is not None:
         if state["architecture"] != architecture_of(config).to_dict() or \
@@ -164,6 +184,8 @@ def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
                              f"{state['input_size']}, the config asks for {architecture_of(config).to_dict()} "
                              f"at {[config.input_width, config.input_height]}")
     net.load_state_dict(state["model"])
+    if ema is not None:
+        ema.load_state_dict(state.get("ema", state["model"]))
     if optimiser is not None:
         opt = state["optimiser"]
         for s in opt["state"].values():
@@ -176,9 +198,10 @@ def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
 
 
 def load_network(path: Path) -> ContactNet:
+    """The averaged weights of a state (what is evaluated and exported), in eval mode."""
     state = torch.load(path, map_location="cpu", weights_only=False)
     net = ContactNet(ContactArchitecture.from_dict(state["architecture"]))
-    net.load_state_dict(state["model"])
+    net.load_state_dict(state.get("ema", state["model"]))
     net.eval()
     return net
 

@@ -62,9 +62,13 @@ def test_resumed_training_equals_an_uninterrupted_run(contact_sequences, tmp_pat
     resumed = train_contact(small_config(tmp_path / "split"), contact_sequences, progress=False,
                             resume=True)
     assert resumed["step"] == whole["step"] == 4
-    for a, b in zip(whole["net"].state_dict().values(), resumed["net"].state_dict().values()):
-        # Adam's moments pass through float16 in the committed state: equal to a small tolerance.
-        assert torch.allclose(a.float(), b.float(), atol=2e-3)
+    for key in ("net", "ema"):
+        for a, b in zip(whole[key].state_dict().values(), resumed[key].state_dict().values()):
+            # Adam's moments pass through float16 in the committed state: equal to a small tolerance.
+            assert torch.allclose(a.float(), b.float(), atol=2e-3)
+    moved = [not torch.equal(a, b) for a, b in zip(whole["ema"].state_dict().values(),
+                                                    whole["net"].state_dict().values())]
+    assert any(moved)      # the average lags the last step
     with pytest.raises(FileExistsError):
         train_contact(small_config(tmp_path / "whole"), contact_sequences, progress=False)
 
