@@ -22,6 +22,9 @@ class Frame:
     """Capture time in seconds from the container/stream time stamps, from the source start."""
     image: np.ndarray
     """BGR uint8, H x W x 3."""
+    damage: str = ""
+    """Why this frame cannot be trusted ("" = it decoded clean): a decoder error, a corrupt flag,
+    frames missing before it, or a damaged frame it is predicted from (``stages.pyav_capture``)."""
 
 
 @dataclass

@@ -22,7 +22,7 @@ from pipeline.config import Config
 from pipeline.errors import HeightpipeError
 
 TOPICS = ("/tracks", "/camera/image", "/camera/calibration", "/camera/height", "/camera/ground",
-          "/camera/matches")
+          "/camera/matches", "/capture/damage")
 """What replay draws; /camera/annotations is redundant with /tracks (boxes are redrawn)."""
 
 
@@ -173,6 +173,8 @@ def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time:
         logger.log_matches(*_match_arrays(matches))
     if record is not None:
         logger.log_tracks(tracks_from_record(record))
+    if (damage := messages.get("/capture/damage")) is not None:
+        logger.log_damage(damage.message)
     logger.end_frame()
 
 

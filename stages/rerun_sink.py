@@ -11,6 +11,7 @@ same recording. Entities:
     /camera/tracks      confirmed tracks: boxes, labels "#id 1.72±0.04 m", class colours
     /height             height map in millimetres, shown colour-mapped in metres
     /tracks/<id>/height one height time series per confirmed track
+    /capture/damage     a warning TextLog on each frame decoded with errors
 
 Timelines: ``frame`` (source frame index) and ``time`` (source time, a duration).
 """
@@ -30,9 +31,9 @@ import rerun.blueprint as rrb
 from pipeline.config import OutputConfig
 from pipeline.errors import ConfigError, HeightpipeError
 from pipeline.packets import OBJECT_CLASSES, FramePacket, Track
-from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, OBJECT_MATCH_RGB,
-                                FrameEncoder, check_output_config, class_id, confirmed,
-                                track_label)
+from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC,
+                                OBJECT_MATCH_RGB, FrameEncoder, check_output_config, class_id,
+                                confirmed, damage_text, track_label)
 
 APPLICATION_ID = "heightpipe"
 VIEWER_MEMORY_LIMIT = "2GB"
@@ -125,6 +126,9 @@ class RerunFrameLogger:
                           np.uint8(OBJECT_MATCH_RGB), np.uint8(BACKGROUND_MATCH_RGB))
         self._log("/camera/matches", rr.Arrows2D(origins=prev, vectors=curr - prev, colors=colors))
 
+    def log_damage(self, text: str) -> None:
+        self.rec.log(DAMAGE_TOPIC, rr.TextLog(text, level=rr.TextLogLevel.WARN))
+
     def log_tracks(self, tracks: list[Track]) -> None:
         """Draws the confirmed ones; always logs (an empty list clears last frame's boxes)."""
         shown = confirmed(tracks)
@@ -208,6 +212,8 @@ class RerunSink:
         if packet.matches is not None:
             log.log_matches(packet.matches.prev_pts, packet.matches.curr_pts, packet.matches.on_object)
         log.log_tracks(packet.tracks)
+        if packet.frame.damage:
+            log.log_damage(damage_text(packet.frame))
         log.end_frame()
         self._flush_if_due(packet.frame.time_s)
 

@@ -1,0 +1,253 @@
+"""Video files through PyAV (FFmpeg's own API): every frame says whether it decoded clean.
+
+OpenCV's ``VideoCapture`` hides FFmpeg's error concealment: a frame rebuilt from a damaged
+packet comes out as a normal image, and the heights measured on it look as good as any.
+PyAV shows what FFmpeg knows, frame by frame:
+
+- the decoder's corrupt-frame flag (``AV_FRAME_FLAG_CORRUPT``) and the errors it logs while
+  decoding a packet ("ac-tex damaged", "concealing 120 DC errors", ...);
+- packets that fail to decode at all;
+- packet time stamps, so frames that vanished from the stream show as a gap in time, and a
+  time stamp that jumps back or far ahead is noticed;
+- the stream's structure: a frame predicted from a damaged one is damaged too, up to the next
+  key frame (concealed errors spread through the motion vectors; measured on the corpus of
+  ``tests/damage_corpus.py``).
+
+Each damaged frame carries its reason in ``Frame.damage`` (the tracker withholds its heights,
+the sinks mark it) and is counted in ``CaptureStats.damaged``; frames lost outright count as
+failed. Streams and webcams stay on OpenCV (``stages.capture``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.config import CaptureConfig
+from pipeline.errors import SourceError
+from pipeline.packets import Frame
+from stages.capture import FrameSource, background_indices
+
+MAX_GAP_S = 10.0
+"""A time stamp further than this past the previous frame is taken as damaged, not as a gap
+of lost frames (no camera drops ten seconds and then carries on in the same file)."""
+
+
+def _av():
+    """PyAV with FFmpeg's errors routed to Python (captured per packet, never printed)."""
+    import av
+
+    av.logging.set_level(av.logging.ERROR)
+    return av
+
+
+class PyAVFileSource(FrameSource):
+    """A video file decoded with PyAV, with per-frame damage detection."""
+
+    def __init__(self, path: Path, config: CaptureConfig, open_container=None):
+        super().__init__(config)
+        self.path = Path(path)
+        self.description = str(path)
+        if not self.path.exists():
+            raise SourceError(f"no such file: {path}")
+        if self.path.is_dir():
+            raise SourceError(f"{path} is a folder without images")
+        av = _av()
+        self._open = open_container or (lambda: av.open(str(self.path)))
+        self.container, self.stream = self._open_video(raise_errors=True)
+        self.fps = float(self.stream.average_rate or self.stream.guessed_rate or 0) or None
+        self.stats.expected = self.stream.frames or self._frames_from_duration()
+        self.size = (self.stream.codec_context.width, self.stream.codec_context.height)
+        if not all(self.size):
+            self.close()
+            raise SourceError(f"{path} is not a readable video (its video stream has no frame size)")
+
+    def _open_video(self, raise_errors: bool = False):
+        av = _av()
+        try:
+            with av.logging.Capture(local=False):  # FFmpeg's own account goes into our one line
+                container = self._open()
+        except av.error.FFmpegError as exc:
+            raise SourceError(not_readable_message(self.path, exc)) from None
+        if not container.streams.video:
+            container.close()
+            raise SourceError(f"{self.path} is not a readable video (no video stream)")
+        stream = container.streams.video[0]
+        # Slice threads only: frame threads would hand back frames late, and the errors logged
+        # for a packet could no longer be told to belong to its frame.
+        stream.thread_type = "SLICE"
+        return container, stream
+
+    def _frames_from_duration(self) -> int | None:
+        """The frame count a header without one implies (duration x rate), as OpenCV reports it."""
+        if self.stream.duration and self.stream.time_base:
+            seconds = float(self.stream.duration * self.stream.time_base)
+        elif self.container.duration:
+            seconds = self.container.duration / 1e6
+        else:
+            return None
+        return round(seconds * self.fps) if self.fps else None
+
+    def frames(self) -> Iterator[Frame]:
+        emitted = 0
+        for frame in self._decode(self.container, self.stream, count=True):
+            if self._skip(frame.index):
+                continue
+            yield frame
+            emitted += 1
+            if self.config.max_frames and emitted >= self.config.max_frames:
+                return
+        self.stats.reached_end = True
+
+    def _decode(self, container, stream, count: bool) -> Iterator[Frame]:
+        """Every decodable frame in order, with its damage; updates the stats if ``count``.
+
+        Images are converted only for frames the run keeps (stride), the rest carry an empty one.
+        """
+        av = _av()
+        tracker = DamageTracker(self.fps)
+        with av.logging.Capture(local=False) as logs:
+            packets = container.demux(stream)
+            while True:
+                try:
+                    packet = next(packets)
+                except StopIteration:
+                    break
+                except av.error.FFmpegError as exc:  # the container breaks off: the rest is lost
+                    if count:
+                        self.stats.notes.append(f"reading stopped early: {_reason(exc)}")
+                    break
+                logged = len(logs)
+                try:
+                    decoded = packet.decode()
+                except av.error.FFmpegError as exc:
+                    tracker.packet_failed(_reason(exc))
+                    continue
+                finally:
+                    errors = [log[2].strip() for log in logs[logged:]]
+                    del logs[:]
+                for av_frame in decoded:
+                    frame = tracker.next_frame(av_frame, errors)
+                    errors = []  # one packet's errors go to its first frame
+                    if count:
+                        self.stats.decoded += 1
+                        self.stats.failed += frame.lost_before
+                        self.stats.damaged += bool(frame.frame.damage)
+                    if not self._skip(frame.frame.index) or not count:
+                        frame.frame.image = av_frame.to_ndarray(format="bgr24")
+                    yield frame.frame
+
+    def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
+        total = self.stats.expected or 0
+        if count <= 0 or total <= 0:
+            return []
+        wanted = set(background_indices(total, self.fps or 25.0, count, span_s))
+        container, stream = self._open_video()  # a second reader: the run's is untouched
+        images = []
+        try:
+            for frame in self._decode(container, stream, count=False):
+                if frame.index > max(wanted):
+                    break
+                if frame.index in wanted and not frame.damage:
+                    images.append(frame.image)
+        finally:
+            container.close()
+        return images
+
+    def close(self) -> None:
+        container = getattr(self, "container", None)
+        if container is not None:
+            container.close()
+            self.container = None
+
+
+class _Decoded:
+    def __init__(self, frame: Frame, lost_before: int):
+        self.frame = frame
+        self.lost_before = lost_before
+
+
+class DamageTracker:
+    """Turns decoded frames (in output order) into ``Frame``s with index, time and damage.
+
+    Indices are the source's: frames lost between two decoded ones (a gap in the time stamps)
+    are skipped over and counted, so frame N is the same picture as in a clean copy.
+    """
+
+    def __init__(self, fps: float | None):
+        self.fps = fps
+        self.index = -1
+        self.time_s = 0.0
+        self.origin_s: float | None = None
+        self.spreading: str = ""
+        """Damage this frame inherits from a damaged reference, until the next clean key frame."""
+        self.failed_packet: str = ""
+
+    def packet_failed(self, reason: str) -> None:
+        self.failed_packet = reason
+
+    def next_frame(self, av_frame, errors: list[str]) -> _Decoded:
+        reasons = []
+        if self.failed_packet:
+            reasons.append(f"a packet before it failed to decode ({self.failed_packet})")
+            self.failed_packet = ""
+        if av_frame.is_corrupt:
+            reasons.append("decoder flags it corrupt")
+        if errors:
+            reasons.append(f"decoder error: {errors[0]}" + (f" (+{len(errors) - 1} more)" if len(errors) > 1 else ""))
+        lost, time_s, time_note = self._place(av_frame)
+        if lost:
+            reasons.append(f"{lost} frame{'s' if lost > 1 else ''} missing before it")
+        if time_note:
+            reasons.append(time_note)
+        if reasons:
+            self.spreading = f"predicted from a damaged frame (frame {self.index}: {reasons[0]})"
+        elif av_frame.key_frame:
+            self.spreading = ""
+        damage = "; ".join(reasons) or self.spreading
+        return _Decoded(Frame(index=self.index, time_s=time_s, image=_EMPTY, damage=damage), lost)
+
+    def _place(self, av_frame) -> tuple[int, float, str]:
+        """(frames lost before this one, its time from the first frame, a time stamp problem)."""
+        step = 1.0 / self.fps if self.fps else 0.0
+        stamp = av_frame.time
+        if stamp is None or not self.fps:  # raw streams have no time stamps: count frames
+            self.index += 1
+            self.time_s = self.index * step
+            return 0, self.time_s, ""
+        if self.origin_s is None:
+            self.origin_s = stamp
+            self.index = 0
+            self.time_s = 0.0
+            return 0, 0.0, ""
+        time_s = stamp - self.origin_s
+        gap = time_s - self.time_s
+        if gap <= 0 or gap > MAX_GAP_S:
+            self.index += 1
+            self.time_s += step
+            return 0, self.time_s, f"time stamp {'goes back' if gap <= 0 else 'jumps ahead'} ({gap:+.3f} s)"
+        lost = max(0, round(gap * self.fps) - 1)
+        self.index += 1 + lost
+        self.time_s = time_s
+        return lost, time_s, ""
+
+
+_EMPTY = np.zeros((0, 0, 3), np.uint8)
+
+
+def _reason(exc: Exception) -> str:
+    text = getattr(exc, "strerror", None) or str(exc)
+    return str(text).strip()
+
+
+def not_readable_message(path: Path, exc: Exception) -> str:
+    """One line saying why FFmpeg cannot open ``path`` and what the user can do."""
+    from stages.mp4_salvage import lacks_index
+
+    if lacks_index(path):
+        return (f"{path} is an MP4/MOV without its index (moov atom): the recording was cut off before "
+                f"it was finished. Salvage its frames with --reference GOOD.mp4 (a complete recording "
+                f"from the same camera and settings), or record to MKV or MPEG-TS, which survive a cut")
+    return f"{path} is not a readable video (FFmpeg: {_reason(exc)})"

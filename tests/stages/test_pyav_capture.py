@@ -1,0 +1,94 @@
+"""PyAV capture: frames decoded with errors are reported, never passed off as clean."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from damage import damaged_against, decode_all, flip_bits, truncate
+from media import REPO_ROOT
+from pipeline.config import CaptureConfig
+from pipeline.errors import ConfigError, SourceError
+from stages.capture import VideoFileSource, open_source
+from stages.pyav_capture import DamageTracker, PyAVFileSource
+
+SAMPLE = REPO_ROOT / "recordings" / "sample.mp4"
+
+
+def test_clean_video_matches_opencv_frame_for_frame():
+    pyav = open_source(str(SAMPLE), CaptureConfig())
+    opencv = open_source(str(SAMPLE), CaptureConfig(backend="opencv"))
+    assert isinstance(pyav, PyAVFileSource) and isinstance(opencv, VideoFileSource)
+    ours, theirs = list(pyav.frames()), list(opencv.frames())
+    assert [(f.index, round(f.time_s, 3)) for f in ours] == [(f.index, round(f.time_s, 3)) for f in theirs]
+    assert len(ours) == 180 and not any(f.damage for f in ours)
+    assert pyav.stats.summary() == "180 frames decoded"
+    assert pyav.fps == pytest.approx(15.0) and pyav.size == (640, 360)
+
+
+def test_every_frame_that_differs_from_the_clean_decode_is_reported(tmp_path):
+    flipped = tmp_path / "flipped.mp4"
+    flipped.write_bytes(flip_bits(SAMPLE.read_bytes(), count=5, seed=1))
+    source = open_source(str(flipped), CaptureConfig())
+    frames = list(source.frames())
+    differing = damaged_against(decode_all(SAMPLE), {f.index: f.image for f in frames})
+    reported = {f.index for f in frames if f.damage}
+    assert differing and differing <= reported
+    assert source.stats.damaged == len(reported)
+    assert f"{len(reported)} damaged" in source.stats.summary()
+    first = min(reported)
+    assert "decoder" in next(f.damage for f in frames if f.index == first)
+
+
+def test_stride_and_max_frames_keep_source_indices():
+    source = open_source(str(SAMPLE), CaptureConfig(stride=3, max_frames=4))
+    assert [f.index for f in source.frames()] == [0, 3, 6, 9]
+    assert all(f.image.shape == (360, 640, 3) for f in open_source(str(SAMPLE), CaptureConfig(max_frames=2)).frames())
+
+
+def test_background_sample_skips_nothing_of_the_run():
+    source = open_source(str(SAMPLE), CaptureConfig())
+    assert len(source.background_sample(5, span_s=30.0)) == 5
+    assert len(list(source.frames())) == 180
+
+
+def test_mp4_cut_before_its_index_is_a_one_line_error_that_says_what_to_do(tmp_path):
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(truncate(SAMPLE.read_bytes(), 0.9))
+    with pytest.raises(SourceError, match="without its index .*--reference") as error:
+        open_source(str(cut), CaptureConfig())
+    assert "\n" not in str(error.value)
+
+
+def test_unknown_backend():
+    with pytest.raises(ConfigError, match="capture.backend"):
+        open_source(str(SAMPLE), CaptureConfig(backend="gstreamer"))
+
+
+def _frame(time, key=False, corrupt=False):
+    return SimpleNamespace(time=time, key_frame=key, is_corrupt=corrupt)
+
+
+@pytest.mark.parametrize("events, expected", [
+    # (time s, key frame, corrupt flag, decoder errors) -> (index, damaged?)
+    ([(0.0, True, False, []), (0.1, False, False, []), (0.2, False, False, [])],
+     [(0, False), (1, False), (2, False)]),
+    # a corrupt frame spreads to the frames predicted from it, up to the next clean key frame
+    ([(0.0, True, False, []), (0.1, False, True, []), (0.2, False, False, []), (0.3, True, False, []),
+      (0.4, False, False, [])],
+     [(0, False), (1, True), (2, True), (3, False), (4, False)]),
+    # two frames missing: the indices skip them, the next frame is damaged (its reference is gone)
+    ([(0.0, True, False, []), (0.1, False, False, []), (0.4, False, False, [])],
+     [(0, False), (1, False), (4, True)]),
+    # a decoder error counts like a corrupt flag; a time stamp going back is damage too
+    ([(0.0, True, False, ["ac-tex damaged"]), (0.1, True, False, []), (0.05, False, False, [])],
+     [(0, True), (1, False), (2, True)]),
+])
+def test_damage_tracker(events, expected):
+    tracker = DamageTracker(fps=10.0)
+    got = []
+    for time, key, corrupt, errors in events:
+        frame = tracker.next_frame(_frame(time, key, corrupt), errors).frame
+        got.append((frame.index, bool(frame.damage)))
+    assert got == expected
