@@ -129,7 +129,8 @@ class Track:
     ground_xy_m: tuple[float, float] | None = None
     """Ground position in metres (world x, y) where the camera is calibrated."""
     height_source: str = "network"
-    """'network', 'geometry' (foot and top), 'box' (a vehicle's outline) or 'fused'."""
+    """'network', 'geometry' (foot and top), 'box' (a vehicle's outline), 'fused', or 'none' while
+    the track has no height measurement (height_m NaN): e.g. its top is cut off by the image edge."""
     hits: int = 0
     age: int = 0
     updated: bool = True

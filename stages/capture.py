@@ -327,6 +327,11 @@ def open_source(spec: str, config: CaptureConfig, image_fps: float = 10.0) -> Fr
         return ImageFolderSource(paths, str(path), config, image_fps)
     if config.backend not in ("pyav", "opencv"):
         raise ConfigError(f"capture.backend must be 'pyav' or 'opencv', got {config.backend!r}")
+    if config.reference:
+        from stages.mp4_salvage import lacks_index, open_salvaged
+
+        if lacks_index(path):
+            return open_salvaged(path, config)
     if config.backend == "opencv":
         return VideoFileSource(path, config)
     from stages.pyav_capture import PyAVFileSource

@@ -32,7 +32,7 @@ class TrackCsvSink:
     def write(self, packet: FramePacket) -> None:
         frame = packet.frame
         for track in confirmed(packet.tracks):
-            x, y, w, h = track.box
+            x, y, w, h = (round(v, 1) + 0.0 for v in track.box)  # + 0.0: no "-0.0" at the border
             self._writer.writerow((
                 frame.index, f"{frame.time_s:.4f}", track.track_id, track.cls,
                 f"{x:.1f}", f"{y:.1f}", f"{w:.1f}", f"{h:.1f}", f"{track.score:.3f}",

@@ -19,7 +19,18 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
+import struct
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline.config import CaptureConfig
+from pipeline.errors import SourceError
+
 CONTAINER_BOXES = {b"ftyp", b"moov", b"mdat", b"free", b"skip", b"wide", b"uuid", b"pnot", b"meta", b"styp"}
+RAW_FORMATS = {"h264": "h264", "hevc": "hevc", "mpeg4": "m4v", "mjpeg": "mjpeg"}
+"""Codec of the reference -> FFmpeg's raw elementary-stream demuxer for the salvaged frames."""
+COPY_BLOCK = 1 << 20
 
 
 @dataclass
@@ -31,18 +42,21 @@ class Box:
     """End of the payload as the size field says (may lie past the end of a cut file)."""
 
 
-def top_level_boxes(data: bytes) -> list[Box]:
+def top_level_boxes(stream) -> list[Box]:
     """The top-level boxes as far as they can be walked (a cut file's last box runs past its end)."""
+    stream.seek(0, 2)
+    file_size = stream.tell()
     boxes, offset = [], 0
-    while offset + 8 <= len(data):
-        size, kind = struct.unpack(">I4s", data[offset:offset + 8])
+    while offset + 8 <= file_size:
+        stream.seek(offset)
+        head = stream.read(16)
+        size, kind = struct.unpack(">I4s", head[:8])
         header = 8
-        if size == 1 and offset + 16 <= len(data):
-            size = struct.unpack(">Q", data[offset + 8:offset + 16])[0]
-            header = 16
+        if size == 1 and len(head) == 16:
+            size, header = struct.unpack(">Q", head[8:16])[0], 16
         elif size == 0:  # "to the end of the file"
-            size = len(data) - offset
-        if size < header or kind not in CONTAINER_BOXES and not kind.isalnum():
+            size = file_size - offset
+        if size < header or kind not in CONTAINER_BOXES:
             break
         boxes.append(Box(kind, offset + header, offset + size))
         offset += size
@@ -53,8 +67,133 @@ def lacks_index(path: Path) -> bool:
     """An MP4/MOV with frame data (``mdat``) but no index (``moov``): a recording cut off."""
     try:
         with open(path, "rb") as stream:
-            data = stream.read()
+            kinds = [box.kind for box in top_level_boxes(stream)]
     except OSError:
         return False
-    kinds = [box.kind for box in top_level_boxes(data)]
     return b"mdat" in kinds and b"moov" not in kinds
+
+
+@dataclass
+class Reference:
+    """What the cut file lacks, read from a complete recording of the same camera."""
+
+    codec: str
+    extradata: bytes
+    fps: float
+
+
+def read_reference(path: Path) -> Reference:
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                raise SourceError(f"reference {path} has no video stream")
+            stream = container.streams.video[0]
+            codec = stream.codec_context.name
+            extradata = bytes(stream.codec_context.extradata or b"")
+            fps = float(stream.average_rate or stream.guessed_rate or 25.0)
+    except av.error.FFmpegError as exc:
+        raise SourceError(f"reference {path} is not a readable video ({exc.strerror})") from None
+    if codec not in RAW_FORMATS:
+        raise SourceError(f"cannot salvage {codec} video (only {', '.join(sorted(RAW_FORMATS))}); "
+                          f"reference {path}")
+    return Reference(codec, extradata, fps)
+
+
+def salvage_to_raw(cut: Path, reference: Reference, out) -> str:
+    """Writes the cut file's frames as a raw elementary stream to ``out``; returns a note on
+    where the salvage stopped ("" = at the end of the file)."""
+    with open(cut, "rb") as stream:
+        boxes = top_level_boxes(stream)
+        mdat = next((box for box in boxes if box.kind == b"mdat"), None)
+        if mdat is None:
+            raise SourceError(f"{cut} has no frame data (mdat box) to salvage")
+        stream.seek(0, 2)
+        end = min(mdat.end, stream.tell())
+        stream.seek(mdat.start)
+        if reference.codec in ("h264", "hevc"):
+            return _length_prefixed_to_annex_b(stream, end, reference, out)
+        if reference.codec == "mpeg4":
+            out.write(reference.extradata)  # the VOL header the cut file's index held
+        _copy(stream, end - mdat.start, out)
+        return ""
+
+
+def _copy(stream, count: int, out) -> None:
+    while count > 0:
+        block = stream.read(min(COPY_BLOCK, count))
+        if not block:
+            return
+        out.write(block)
+        count -= len(block)
+
+
+START_CODE = b"\x00\x00\x00\x01"
+
+
+def _length_prefixed_to_annex_b(stream, end: int, reference: Reference, out) -> str:
+    """H.264/H.265 in MP4: [length][NAL] ... -> start-code delimited NALs after the parameter sets."""
+    length_size, parameter_sets = _parameter_sets(reference)
+    for nal in parameter_sets:
+        out.write(START_CODE + nal)
+    while stream.tell() + length_size <= end:
+        position = stream.tell()
+        length = int.from_bytes(stream.read(length_size), "big")
+        if length == 0 or position + length_size + length > end:
+            return "" if length == 0 else f"the last frame is cut off at byte {end}"
+        nal = stream.read(length)
+        if nal[0] & 0x80:  # forbidden bit: not a NAL unit (audio interleaved, or damage)
+            return f"no video NAL unit at byte {position} (audio interleaved with the video, or damage)"
+        out.write(START_CODE + nal)
+    return ""
+
+
+def _parameter_sets(reference: Reference) -> tuple[int, list[bytes]]:
+    """(NAL length size, SPS/PPS/VPS NAL units) from an avcC or hvcC record."""
+    data = reference.extradata
+    if not data or data[0] != 1:  # already Annex B (or none): the stream carries its own
+        return 4, [nal for nal in data.split(START_CODE) if nal] if data else []
+    nals = []
+    if reference.codec == "h264":
+        length_size = (data[4] & 3) + 1
+        offset, count = 6, data[5] & 0x1F
+        for table in range(2):
+            for _ in range(count):
+                size = int.from_bytes(data[offset:offset + 2], "big")
+                nals.append(data[offset + 2:offset + 2 + size])
+                offset += 2 + size
+            if table == 0:
+                count, offset = data[offset], offset + 1
+        return length_size, nals
+    length_size, arrays, offset = (data[21] & 3) + 1, data[22], 23
+    for _ in range(arrays):
+        count = int.from_bytes(data[offset + 1:offset + 3], "big")
+        offset += 3
+        for _ in range(count):
+            size = int.from_bytes(data[offset:offset + 2], "big")
+            nals.append(data[offset + 2:offset + 2 + size])
+            offset += 2 + size
+    return length_size, nals
+
+
+def open_salvaged(path: Path, config: CaptureConfig):
+    """A ``PyAVFileSource`` over the frames of the index-less MP4 ``path``, decoded with the codec
+    settings of ``capture.reference``; time stamps follow the reference's frame rate."""
+    import av
+
+    from stages.pyav_capture import PyAVFileSource
+
+    reference = read_reference(Path(config.reference))
+    raw = tempfile.NamedTemporaryFile(prefix="heightpipe-salvage-", suffix="." + RAW_FORMATS[reference.codec])
+    stopped = salvage_to_raw(path, reference, raw)
+    raw.flush()
+    options = {"framerate": f"{reference.fps:.6f}"}
+    source = PyAVFileSource(path, config, open_container=lambda: av.open(
+        raw.name, format=RAW_FORMATS[reference.codec], options=options))
+    source.description = f"{path} (salvaged)"
+    source.stats.expected = None  # a raw stream has no frame count; a guess from its size would mislead
+    source.stats.notes.append(f"salvaged from an MP4 without index with the codec settings of "
+                              f"{config.reference}" + (f"; {stopped}" if stopped else ""))
+    source.keep_alive(raw)
+    return source

@@ -54,8 +54,10 @@ class PyAVFileSource(FrameSource):
             raise SourceError(f"no such file: {path}")
         if self.path.is_dir():
             raise SourceError(f"{path} is a folder without images")
+        self._resources: list = []
         av = _av()
         self._open = open_container or (lambda: av.open(str(self.path)))
+        self._plain_file = open_container is None
         self.container, self.stream = self._open_video(raise_errors=True)
         self.fps = float(self.stream.average_rate or self.stream.guessed_rate or 0) or None
         self.stats.expected = self.stream.frames or self._frames_from_duration()
@@ -66,9 +68,11 @@ class PyAVFileSource(FrameSource):
 
     def _open_video(self, raise_errors: bool = False):
         av = _av()
+        # A damaged signature can also make FFmpeg take the file for another format: repair first.
+        container = self._open_with_repaired_header() if raise_errors and self._plain_file else None
         try:
             with av.logging.Capture(local=False):  # FFmpeg's own account goes into our one line
-                container = self._open()
+                container = container or self._open()
         except av.error.FFmpegError as exc:
             raise SourceError(not_readable_message(self.path, exc)) from None
         if not container.streams.video:
@@ -89,6 +93,24 @@ class PyAVFileSource(FrameSource):
         else:
             return None
         return round(seconds * self.fps) if self.fps else None
+
+    def _open_with_repaired_header(self):
+        """The container read through a corrected first four bytes, if that is what is damaged."""
+        from stages.header_repair import PatchedFile, header_patch
+
+        av = _av()
+        patch = header_patch(self.path)
+        if patch is None:
+            return None
+        fixed, what = patch
+        self._open = lambda: av.open(PatchedFile(self.path, fixed))
+        try:
+            with av.logging.Capture(local=False):
+                container = self._open()
+        except av.error.FFmpegError:
+            return None
+        self.stats.notes.append(f"read with {what} repaired (its first bytes were damaged)")
+        return container
 
     def frames(self) -> Iterator[Frame]:
         emitted = 0
@@ -156,11 +178,18 @@ class PyAVFileSource(FrameSource):
             container.close()
         return images
 
+    def keep_alive(self, resource) -> None:
+        """Close ``resource`` (e.g. a temporary file the container reads) with this source."""
+        self._resources.append(resource)
+
     def close(self) -> None:
         container = getattr(self, "container", None)
         if container is not None:
             container.close()
             self.container = None
+        for resource in getattr(self, "_resources", []):
+            resource.close()
+        self._resources = []
 
 
 class _Decoded:
@@ -198,7 +227,7 @@ class DamageTracker:
         if errors:
             reasons.append(f"decoder error: {errors[0]}" + (f" (+{len(errors) - 1} more)" if len(errors) > 1 else ""))
         lost, time_s, time_note = self._place(av_frame)
-        if lost:
+        if lost and not av_frame.key_frame:  # a key frame needs no earlier frame: it is whole
             reasons.append(f"{lost} frame{'s' if lost > 1 else ''} missing before it")
         if time_note:
             reasons.append(time_note)

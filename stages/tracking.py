@@ -141,7 +141,7 @@ class _TrackState:
             height_std_m=self.height.std_m if has_height else float("inf"),
             confirmed=self.confirmed,
             ground_xy_m=self.ground_xy_m,
-            height_source=self.height.source if has_height else "network",
+            height_source=self.height.source if has_height else "none",
             hits=self.hits,
             age=self.age,
             updated=self.updated,

@@ -81,6 +81,9 @@ def _frame(time, key=False, corrupt=False):
     # two frames missing: the indices skip them, the next frame is damaged (its reference is gone)
     ([(0.0, True, False, []), (0.1, False, False, []), (0.4, False, False, [])],
      [(0, False), (1, False), (4, True)]),
+    # ... unless it is a key frame, which needs no reference
+    ([(0.0, True, False, []), (0.3, True, False, []), (0.4, False, False, [])],
+     [(0, False), (3, False), (4, False)]),
     # a decoder error counts like a corrupt flag; a time stamp going back is damage too
     ([(0.0, True, False, ["ac-tex damaged"]), (0.1, True, False, []), (0.05, False, False, [])],
      [(0, True), (1, False), (2, True)]),
@@ -92,3 +95,38 @@ def test_damage_tracker(events, expected):
         frame = tracker.next_frame(_frame(time, key, corrupt), errors).frame
         got.append((frame.index, bool(frame.damage)))
     assert got == expected
+
+
+@pytest.mark.parametrize("container", ["mp4", "matroska", "avi"])
+def test_zeroed_header_is_repaired_and_the_file_reads_as_new(tmp_path, container):
+    from damage import zero_header
+    from damage_corpus import remux
+
+    clean = remux(SAMPLE, tmp_path / f"clean.{container[:3]}", {"matroska": "mkv"}.get(container, container),
+                  max_frames=24)
+    damaged = tmp_path / f"damaged.{container[:3]}"
+    damaged.write_bytes(zero_header(clean.read_bytes()))
+    source = open_source(str(damaged), CaptureConfig())
+    frames = {f.index: f.image for f in source.frames()}
+    assert len(frames) == 24 and not damaged_against(decode_all(clean), frames)
+    assert "repaired" in source.stats.summary()
+    assert damaged.read_bytes()[:4] == bytes(4)  # the file itself is left as it was
+
+
+@pytest.mark.parametrize("codec_source", ["sample", "traffic"])
+def test_mp4_cut_at_90_percent_is_salvaged_with_a_reference(tmp_path, codec_source):
+    """Must-show 2: at least 80 % of the frames before the cut processed (MPEG-4 part 2 and H.264)."""
+    from damage_corpus import TRAFFIC, packet_ends, remux
+
+    if codec_source == "traffic" and not TRAFFIC.exists():
+        pytest.skip("shared real clips not present")
+    clean = remux(SAMPLE if codec_source == "sample" else TRAFFIC, tmp_path / "clean.mp4", "mp4", max_frames=120)
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(truncate(clean.read_bytes(), 0.9))
+    present = sum(end <= cut.stat().st_size for end in packet_ends(clean))
+    source = open_source(str(cut), CaptureConfig(reference=str(clean)))
+    frames = {f.index: f for f in source.frames()}
+    assert len(frames) >= 0.8 * present
+    differing = damaged_against(decode_all(clean), {i: f.image for i, f in frames.items()})
+    assert differing <= {i for i, f in frames.items() if f.damage}
+    assert "salvaged" in source.stats.summary()
