@@ -70,8 +70,10 @@ def remux(source: Path, target: Path, container: str, max_frames: int | None = N
         avi = container == "avi"
         if avi:  # AVI has no time stamps, only a frame rate
             out_stream.time_base = 1 / Fraction(in_stream.average_rate)
-        annex_b = (BitStreamFilterContext("h264_mp4toannexb", in_stream, out_stream)
-                   if avi and in_stream.codec_context.name == "h264" else None)
+        # Stream formats carry the codec set-up in band: H.264 as Annex B, MPEG-4 with its VOL header.
+        in_band = {"h264": "h264_mp4toannexb", "mpeg4": "dump_extra"}.get(in_stream.codec_context.name)
+        needs_in_band = container in ("ts", "h264") or (avi and in_band == "h264_mp4toannexb")
+        annex_b = BitStreamFilterContext(in_band, in_stream, out_stream) if in_band and needs_in_band else None
         count = 0
         for packet in inp.demux(in_stream):
             if packet.dts is None:
