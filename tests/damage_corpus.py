@@ -329,6 +329,8 @@ def fuzz(out: Path, cases: int) -> None:
         else:
             counts["differs_silent"] += 1
             silent.append((case, container, stderr.strip().splitlines()[1] if stderr else ""))
+        if (case + 1) % 10 == 0:
+            print(f"  {case + 1} cases, {time.monotonic() - start:.0f} s: {counts}", flush=True)
     runner.close()
     print(f"{cases} bit-flip cases in {time.monotonic() - start:.0f} s: {counts}")
     for case in silent:
