@@ -11,11 +11,9 @@ from pathlib import Path
 import pytest
 
 from pipeline import cli
-from pipeline.config import OutputConfig
 from pipeline.recover import ORIGINAL_SUFFIX, mcap_is_complete, rrd_is_complete
-from stages.mcap_sink import McapSink
 
-from media import REPO_ROOT, make_sink_packet, write_moving_box_video
+from media import REPO_ROOT, write_moving_box_video, write_unfinished_recording
 
 
 def default_reader_images(path: Path) -> list[int]:
@@ -28,12 +26,7 @@ def default_reader_images(path: Path) -> list[int]:
 
 def test_recover_unfinished_mcap_keeps_every_complete_chunk(tmp_path, capsys):
     path = tmp_path / "run.mcap"
-    sink = McapSink(path, OutputConfig(flush_interval_s=1.0))
-    for index in range(35):  # 3.5 s at 10 fps: chunks closed at 1, 2 and 3 s
-        sink.write(make_sink_packet(index))
-    sink.close()
-    data = path.read_bytes()
-    path.write_bytes(data[:len(data) * 2 // 3])
+    cut = write_unfinished_recording(path)  # 3.5 s at 10 fps: chunks closed at 1, 2 and 3 s
     assert not mcap_is_complete(path)
 
     assert cli.main(["recover", str(path)]) == 0
@@ -42,7 +35,7 @@ def test_recover_unfinished_mcap_keeps_every_complete_chunk(tmp_path, capsys):
     assert 10 <= frames < 35 and ("unfinished chunk" in err or "cut off" in err)
     assert mcap_is_complete(path)
     assert len(default_reader_images(path)) == frames
-    assert (tmp_path / f"run.mcap{ORIGINAL_SUFFIX}").read_bytes() == data[:len(data) * 2 // 3]
+    assert (tmp_path / f"run.mcap{ORIGINAL_SUFFIX}").read_bytes() == cut
     # replay reads the unfinished original through the same reader: the same frames
     assert cli.main(["replay", str(tmp_path / f"run.mcap{ORIGINAL_SUFFIX}"), "--save", str(tmp_path / "r.rrd")]) == 0
     assert f"replayed {frames} frames" in capsys.readouterr().err

@@ -15,7 +15,7 @@ from stages.mcap_sink import McapSink
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder
 
-from media import make_sink_packet, rrd_rows
+from media import make_sink_packet, rrd_rows, write_unfinished_recording
 
 
 
@@ -73,12 +73,7 @@ def test_replay_draws_what_the_live_sink_draws(tmp_path, capsys):
 
 def test_unfinished_recording_replays_its_complete_chunks(tmp_path, capsys):
     path = tmp_path / "run.mcap"
-    sink = McapSink(path, OutputConfig(flush_interval_s=1.0))
-    for index in range(35):  # 3.5 s at 10 fps: chunks closed at 1, 2 and 3 s
-        sink.write(make_packet(index))
-    sink.close()
-    data = path.read_bytes()
-    path.write_bytes(data[:len(data) * 2 // 3])
+    write_unfinished_recording(path)  # 3.5 s at 10 fps: chunks closed at 1, 2 and 3 s
 
     assert cli.main(["replay", str(path), "--save", str(tmp_path / "cut.rrd")]) == 0
     err = capsys.readouterr().err
