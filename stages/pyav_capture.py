@@ -20,7 +20,7 @@ failed. Streams and webcams stay on OpenCV (``stages.capture``).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +58,7 @@ class PyAVFileSource(FrameSource):
         av = _av()
         self._open = open_container or (lambda: av.open(str(self.path)))
         self._plain_file = open_container is None
-        self.container, self.stream = self._open_video(raise_errors=True)
+        self.container, self.stream = self._open_video(first=True)
         self.fps = float(self.stream.average_rate or self.stream.guessed_rate or 0) or None
         self.stats.expected = self.stream.frames or self._frames_from_duration()
         self.size = (self.stream.codec_context.width, self.stream.codec_context.height)
@@ -66,10 +66,11 @@ class PyAVFileSource(FrameSource):
             self.close()
             raise SourceError(f"{path} is not a readable video (its video stream has no frame size)")
 
-    def _open_video(self, raise_errors: bool = False):
+    def _open_video(self, first: bool = False):
         av = _av()
-        # A damaged signature can also make FFmpeg take the file for another format: repair first.
-        container = self._open_with_repaired_header() if raise_errors and self._plain_file else None
+        # A damaged signature can also make FFmpeg take the file for another format: repair first
+        # (the repaired opener then serves later opens too).
+        container = self._open_with_repaired_header() if first and self._plain_file else None
         try:
             with av.logging.Capture(local=False):  # FFmpeg's own account goes into our one line
                 container = container or self._open()
@@ -114,7 +115,8 @@ class PyAVFileSource(FrameSource):
 
     def frames(self) -> Iterator[Frame]:
         emitted = 0
-        for frame in self._decode(self.container, self.stream, count=True):
+        for frame in self._decode(self.container, self.stream, keep=lambda index: not self._skip(index),
+                                  count=True):
             if self._skip(frame.index):
                 continue
             yield frame
@@ -123,10 +125,10 @@ class PyAVFileSource(FrameSource):
                 return
         self.stats.reached_end = True
 
-    def _decode(self, container, stream, count: bool) -> Iterator[Frame]:
+    def _decode(self, container, stream, keep: Callable[[int], bool], count: bool) -> Iterator[Frame]:
         """Every decodable frame in order, with its damage; updates the stats if ``count``.
 
-        Images are converted only for frames the run keeps (stride), the rest carry an empty one.
+        Images are converted only for the frame indices ``keep`` wants; the rest carry an empty one.
         """
         av = _av()
         tracker = DamageTracker(self.fps)
@@ -157,7 +159,7 @@ class PyAVFileSource(FrameSource):
                         self.stats.decoded += 1
                         self.stats.failed += frame.lost_before
                         self.stats.damaged += bool(frame.frame.damage)
-                    if not self._skip(frame.frame.index) or not count:
+                    if keep(frame.frame.index):
                         frame.frame.image = av_frame.to_ndarray(format="bgr24")
                     yield frame.frame
 
@@ -169,7 +171,7 @@ class PyAVFileSource(FrameSource):
         container, stream = self._open_video()  # a second reader: the run's is untouched
         images = []
         try:
-            for frame in self._decode(container, stream, count=False):
+            for frame in self._decode(container, stream, keep=wanted.__contains__, count=False):
                 if frame.index > max(wanted):
                     break
                 if frame.index in wanted and not frame.damage:
