@@ -103,7 +103,9 @@ def read_reference(path: Path) -> Reference:
 
 def salvage_to_raw(cut: Path, reference: Reference, out) -> str:
     """Writes the cut file's frames as a raw elementary stream to ``out``; returns a note on
-    where the salvage stopped ("" = at the end of the file)."""
+    what was skipped or where the salvage stopped ("" = read to the end of the file)."""
+    import mmap
+
     with open(cut, "rb") as stream:
         boxes = top_level_boxes(stream)
         mdat = next((box for box in boxes if box.kind == b"mdat"), None)
@@ -111,11 +113,12 @@ def salvage_to_raw(cut: Path, reference: Reference, out) -> str:
             raise SourceError(f"{cut} has no frame data (mdat box) to salvage")
         stream.seek(0, 2)
         end = min(mdat.end, stream.tell())
-        stream.seek(mdat.start)
         if reference.codec in ("h264", "hevc"):
-            return _length_prefixed_to_annex_b(stream, end, reference, out)
+            with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
+                return _length_prefixed_to_annex_b(data, mdat.start, end, reference, out)
         if reference.codec == "mpeg4":
             out.write(reference.extradata)  # the VOL header the cut file's index held
+        stream.seek(mdat.start)
         _copy(stream, end - mdat.start, out)
         return ""
 
@@ -130,23 +133,75 @@ def _copy(stream, count: int, out) -> None:
 
 
 START_CODE = b"\x00\x00\x00\x01"
+MAX_NAL_BYTES = 1 << 24
+MAX_RESYNC_BYTES = 1 << 23
+"""How far past a damaged or foreign stretch (audio interleaved with the video) to look for
+the next NAL unit."""
 
 
-def _length_prefixed_to_annex_b(stream, end: int, reference: Reference, out) -> str:
-    """H.264/H.265 in MP4: [length][NAL] ... -> start-code delimited NALs after the parameter sets."""
+def _length_prefixed_to_annex_b(data, start: int, end: int, reference: Reference, out) -> str:
+    """H.264/H.265 in MP4: [length][NAL] ... -> start-code delimited NALs after the parameter sets.
+
+    Where the chain of lengths breaks (deleted or flipped bytes, audio samples between the
+    video's), the next place where two NAL units follow each other plausibly is searched for.
+    """
     length_size, parameter_sets = _parameter_sets(reference)
     for nal in parameter_sets:
         out.write(START_CODE + nal)
-    while stream.tell() + length_size <= end:
-        position = stream.tell()
-        length = int.from_bytes(stream.read(length_size), "big")
-        if length == 0 or position + length_size + length > end:
-            return "" if length == 0 else f"the last frame is cut off at byte {end}"
-        nal = stream.read(length)
-        if nal[0] & 0x80:  # forbidden bit: not a NAL unit (audio interleaved, or damage)
-            return f"no video NAL unit at byte {position} (audio interleaved with the video, or damage)"
-        out.write(START_CODE + nal)
-    return ""
+    position, skipped, gaps = start, 0, 0
+    frame_start = out.tell()  # where the access unit (frame) being written began
+    while position + length_size < end:
+        if not _nal_at(data, position, end, length_size, reference.codec, depth=2):
+            found = next((candidate for candidate in range(position + 1, min(end, position + MAX_RESYNC_BYTES))
+                          if _nal_at(data, candidate, end, length_size, reference.codec, depth=2)), None)
+            if found is None:
+                break
+            skipped, gaps, position = skipped + found - position, gaps + 1, found
+            continue
+        length = int.from_bytes(data[position:position + length_size], "big")
+        if _starts_frame(data[position + length_size:position + length_size + 3], reference.codec):
+            frame_start = out.tell()
+        out.write(START_CODE + data[position + length_size:position + length_size + length])
+        position += length_size + length
+    notes = [f"{skipped} unreadable bytes skipped in {gaps} places"] if gaps else []
+    if position + length_size < end:
+        # The last frame is cut off: its slices written so far would decode as a patched-up
+        # picture that no decoder flags, so they go too.
+        out.seek(frame_start)
+        out.truncate()
+        notes.append(f"the last frame is cut off ({end - position} bytes), left out")
+    return "; ".join(notes)
+
+
+def _starts_frame(head: bytes, codec: str) -> bool:
+    """This NAL unit begins a new access unit: parameter sets, SEI, a delimiter, or the first
+    slice of a picture (first_mb_in_slice = 0 / first_slice_segment_in_pic_flag = 1)."""
+    if codec == "h264":
+        kind = head[0] & 0x1F
+        return kind in (6, 7, 8, 9) or (kind in (1, 5) and len(head) > 1 and bool(head[1] & 0x80))
+    kind = (head[0] >> 1) & 0x3F
+    return kind in (32, 33, 34, 35, 39) or (kind < 32 and len(head) > 2 and bool(head[2] & 0x80))
+
+
+def _nal_at(data, position: int, end: int, length_size: int, codec: str, depth: int) -> bool:
+    """A plausible NAL unit starts at ``position`` (and, to ``depth``, the ones after it)."""
+    if position == end:  # the previous unit ended exactly at the end of the data
+        return True
+    if position + length_size + 2 > end:
+        return False
+    length = int.from_bytes(data[position:position + length_size], "big")
+    if not 2 <= length <= MAX_NAL_BYTES or position + length_size + length > end:
+        return False
+    header = data[position + length_size]
+    if header & 0x80:  # forbidden_zero_bit
+        return False
+    if codec == "h264":
+        if not 1 <= header & 0x1F <= 12:
+            return False
+    elif (header >> 1) & 0x3F > 40 or data[position + length_size + 1] & 0x07 == 0:
+        return False
+    following = position + length_size + length
+    return depth <= 1 or _nal_at(data, following, end, length_size, codec, depth - 1)
 
 
 def _parameter_sets(reference: Reference) -> tuple[int, list[bytes]]:
