@@ -31,6 +31,9 @@ CONTAINER_BOXES = {b"ftyp", b"moov", b"mdat", b"free", b"skip", b"wide", b"uuid"
 RAW_FORMATS = {"h264": "h264", "hevc": "hevc", "mpeg4": "m4v", "mjpeg": "mjpeg"}
 """Codec of the reference -> FFmpeg's raw elementary-stream demuxer for the salvaged frames."""
 COPY_BLOCK = 1 << 20
+UNSURE_TAIL_FRAMES = 3
+"""Frames at the end of a cut stream with B-frames that may stand in the wrong place (x264's
+default of 3 B-frames)."""
 
 
 @dataclass
@@ -80,6 +83,8 @@ class Reference:
     codec: str
     extradata: bytes
     fps: float
+    reorders: bool
+    """The codec reorders frames (B-frames): decode order is not display order."""
 
 
 def read_reference(path: Path) -> Reference:
@@ -93,12 +98,13 @@ def read_reference(path: Path) -> Reference:
             codec = stream.codec_context.name
             extradata = bytes(stream.codec_context.extradata or b"")
             fps = float(stream.average_rate or stream.guessed_rate or 25.0)
+            reorders = bool(stream.codec_context.has_b_frames)
     except av.error.FFmpegError as exc:
         raise SourceError(f"reference {path} is not a readable video ({exc.strerror})") from None
     if codec not in RAW_FORMATS:
         raise SourceError(f"cannot salvage {codec} video (only {', '.join(sorted(RAW_FORMATS))}); "
                           f"reference {path}")
-    return Reference(codec, extradata, fps)
+    return Reference(codec, extradata, fps, reorders)
 
 
 def salvage_to_raw(cut: Path, reference: Reference, out) -> str:
@@ -247,6 +253,8 @@ def open_salvaged(path: Path, config: CaptureConfig):
     source = PyAVFileSource(path, config, open_container=lambda: av.open(
         raw.name, format=RAW_FORMATS[reference.codec], options=options))
     source.description = f"{path} (salvaged)"
+    if reference.reorders and stopped:
+        source.unsure_tail = UNSURE_TAIL_FRAMES
     source.stats.expected = None  # a raw stream has no frame count; a guess from its size would mislead
     source.stats.notes.append(f"salvaged from an MP4 without index with the codec settings of "
                               f"{config.reference}" + (f"; {stopped}" if stopped else ""))

@@ -20,6 +20,7 @@ failed. Streams and webcams stay on OpenCV (``stages.capture``).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -55,6 +56,10 @@ class PyAVFileSource(FrameSource):
         if self.path.is_dir():
             raise SourceError(f"{path} is a folder without images")
         self._resources: list = []
+        self.unsure_tail = 0
+        """The last this many frames are marked damaged: set for a salvaged stream with B-frames,
+        whose last frames may stand in the place of B-frames cut off after them in decode order
+        (a raw stream has no time stamps to tell)."""
         av = _av()
         self._open = open_container or (lambda: av.open(str(self.path)))
         self._plain_file = open_container is None
@@ -130,6 +135,18 @@ class PyAVFileSource(FrameSource):
 
         Images are converted only for the frame indices ``keep`` wants; the rest carry an empty one.
         """
+        tail: deque[Frame] = deque()
+        for frame in self._decode_each(container, stream, keep, count):
+            tail.append(frame)
+            if len(tail) > self.unsure_tail:
+                yield tail.popleft()
+        for frame in tail:
+            if not frame.damage and count:
+                self.stats.damaged += 1
+            frame.damage = frame.damage or "may be out of place: the frames after it were cut off"
+            yield frame
+
+    def _decode_each(self, container, stream, keep: Callable[[int], bool], count: bool) -> Iterator[Frame]:
         av = _av()
         tracker = DamageTracker(self.fps)
         with av.logging.Capture(local=False) as logs:
