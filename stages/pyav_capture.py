@@ -129,6 +129,19 @@ class PyAVFileSource(FrameSource):
             if self.config.max_frames and emitted >= self.config.max_frames:
                 return
         self.stats.reached_end = True
+        self._count_frames_never_read()
+
+    def _count_frames_never_read(self) -> None:
+        """Frames the header counts (MP4, AVI) that never came out count as failed: cut off, or
+        lost inside the file where no time stamp shows the gap (an AVI read past a damaged
+        index numbers the frames after it as if nothing was missing)."""
+        counted = self.stream.frames if self.stream is not None else 0
+        missing = counted - self.stats.decoded - self.stats.failed
+        if counted and missing > 0:
+            self.stats.failed += missing
+            self.stats.notes.append(f"{missing} frames the header counts never came (cut off, or lost "
+                                    f"inside the file: then frame numbers after the first damage may "
+                                    f"be off by up to {missing})")
 
     def _decode(self, container, stream, keep: Callable[[int], bool], count: bool) -> Iterator[Frame]:
         """Every decodable frame in order, with its damage; updates the stats if ``count``.
