@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -224,10 +225,11 @@ class PyAVFileSource(FrameSource):
         self._resources = []
 
 
+@dataclass
 class _Decoded:
-    def __init__(self, frame: Frame, lost_before: int):
-        self.frame = frame
-        self.lost_before = lost_before
+    frame: Frame
+    lost_before: int
+    """Frames missing from the source just before this one (a gap in the time stamps)."""
 
 
 class DamageTracker:
