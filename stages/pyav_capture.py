@@ -9,6 +9,8 @@ PyAV shows what FFmpeg knows, frame by frame:
 - packets that fail to decode at all;
 - packet time stamps, so frames that vanished from the stream show as a gap in time, and a
   time stamp that jumps back or far ahead is noticed;
+- the container's own checksums where it has them (Matroska clusters' CRC-32, which FFmpeg
+  does not check: ``stages.mkv_checksums``);
 - the stream's structure: a frame predicted from a damaged one is damaged too, up to the next
   key frame (concealed errors spread through the motion vectors; measured on the corpus of
   ``tests/damage_corpus.py``).
@@ -65,6 +67,8 @@ class PyAVFileSource(FrameSource):
         self._open = open_container or (lambda: av.open(str(self.path)))
         self._plain_file = open_container is None
         self.container, self.stream = self._open_video(first=True)
+        self.damaged_ranges = self._checksum_failures()
+        """Byte ranges whose container checksum fails: their frames are damaged, decoded or not."""
         self.fps = float(self.stream.average_rate or self.stream.guessed_rate or 0) or None
         self.stats.expected = self.stream.frames or self._frames_from_duration()
         self.size = (self.stream.codec_context.width, self.stream.codec_context.height)
@@ -90,6 +94,16 @@ class PyAVFileSource(FrameSource):
         # for a packet could no longer be told to belong to its frame.
         stream.thread_type = "SLICE"
         return container, stream
+
+    def _checksum_failures(self) -> list[tuple[int, int]]:
+        if not self._plain_file or "matroska" not in self.container.format.name:
+            return []
+        from stages.mkv_checksums import damaged_clusters
+
+        return damaged_clusters(self.path)
+
+    def _in_damaged_range(self, position: int | None) -> bool:
+        return position is not None and any(start <= position < end for start, end in self.damaged_ranges)
 
     def _frames_from_duration(self) -> int | None:
         """The frame count a header without one implies (duration x rate), as OpenCV reports it."""
@@ -183,6 +197,8 @@ class PyAVFileSource(FrameSource):
                 finally:
                     errors = [log[2].strip() for log in logs[logged:]]
                     del logs[:]
+                    if self._in_damaged_range(packet.pos):
+                        errors.append("its bytes fail the container's checksum (Matroska cluster CRC-32)")
                 for av_frame in decoded:
                     frame = tracker.next_frame(av_frame, errors)
                     errors = []  # one packet's errors go to its first frame

@@ -147,3 +147,23 @@ def test_salvage_reads_past_deleted_bytes(tmp_path):
     assert len(frames) >= 0.75 * 200        # 167 measured; 15 when salvage stopped at the first gap
     assert "unreadable bytes skipped" in source.stats.summary()
     assert source.stats.damaged >= 0.5 * len(frames)
+
+
+def test_mkv_cluster_checksum_catches_damage_the_decoder_cannot_see(tmp_path):
+    """A flipped bit that still decodes (fuzz cases 49 and 160 of docs/results.md) fails the CRC-32."""
+    from damage_corpus import remux
+    from stages.mkv_checksums import damaged_clusters
+
+    clean = remux(SAMPLE, tmp_path / "clean.mkv", "mkv", max_frames=36)
+    assert damaged_clusters(clean) == []
+    data = bytearray(clean.read_bytes())
+    cluster = data.find(b"\x1f\x43\xb6\x75")
+    data[cluster + 15000] ^= 0x10            # inside the first cluster's frame data
+    damaged = tmp_path / "damaged.mkv"
+    damaged.write_bytes(bytes(data))
+    assert [start for start, _ in damaged_clusters(damaged)] == [cluster]
+    frames = list(open_source(str(damaged), CaptureConfig()).frames())
+    differing = damaged_against(decode_all(clean), {f.index: f.image for f in frames})
+    flagged = {f.index for f in frames if f.damage}
+    assert differing <= flagged and 0 in flagged
+    assert any("checksum" in f.damage for f in frames)
