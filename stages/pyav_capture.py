@@ -176,7 +176,9 @@ class PyAVFileSource(FrameSource):
 
     def _decode_each(self, container, stream, keep: Callable[[int], bool], count: bool) -> Iterator[Frame]:
         av = _av()
-        tracker = DamageTracker(self.fps)
+        # AVI stores no presentation times, only a frame rate: with B-frames FFmpeg hands out
+        # decode-order stamps (1, 3, 4, 2, ...). Its frames are counted instead.
+        tracker = DamageTracker(self.fps, use_stamps="avi" not in container.format.name.split(","))
         with av.logging.Capture(local=False) as logs:
             packets = container.demux(stream)
             while True:
@@ -255,8 +257,9 @@ class DamageTracker:
     are skipped over and counted, so frame N is the same picture as in a clean copy.
     """
 
-    def __init__(self, fps: float | None):
+    def __init__(self, fps: float | None, use_stamps: bool = True):
         self.fps = fps
+        self.use_stamps = use_stamps
         self.index = -1
         self.time_s = 0.0
         self.origin_s: float | None = None
@@ -292,7 +295,7 @@ class DamageTracker:
         """(frames lost before this one, its time from the first frame, a time stamp problem)."""
         step = 1.0 / self.fps if self.fps else 0.0
         stamp = av_frame.time
-        if stamp is None or not self.fps:  # raw streams have no time stamps: count frames
+        if stamp is None or not self.fps or not self.use_stamps:  # no time stamps: count frames
             self.index += 1
             self.time_s = self.index * step
             return 0, self.time_s, ""

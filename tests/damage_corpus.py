@@ -245,7 +245,7 @@ def describe_run(code: int, stderr: str, measured: list, clean: list, cut: bool)
     return "differs, damage reported" if reports_damage(code, stderr) else "DIFFERS, NOTHING REPORTED"
 
 
-def table(out: Path) -> None:
+def table(out: Path, only: str = "") -> None:
     model = make_tiny_height_model(out / "tiny.onnx")
     runner = Runner()
     print("| file | damage | frames present | recovered | lost (reported) | damaged inserted | reported | "
@@ -253,6 +253,8 @@ def table(out: Path) -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     totals = dict(present=0, recovered=0, inserted=0, reported=0, missed=0, false_alarms=0)
     for label, clean_path in build_sources(out):
+        if only and only not in label:
+            continue
         clean = capture(clean_path, None)
         clean_code, _, clean_rows = runner.run(clean_path, out / "clean", model, None)
         ends = sorted(packet_ends(clean_path))
@@ -342,11 +344,12 @@ def main() -> None:
     parser.add_argument("what", choices=["table", "fuzz"])
     parser.add_argument("--out", type=Path, help="corpus folder (default: a temporary one)")
     parser.add_argument("--cases", type=int, default=210, help="fuzz cases")
+    parser.add_argument("--only", default="", metavar="TEXT", help="table: only the files whose label holds TEXT")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="heightpipe-damage-") as scratch:
         out = args.out or Path(scratch)
         out.mkdir(parents=True, exist_ok=True)
-        table(out) if args.what == "table" else fuzz(out, args.cases)
+        table(out, args.only) if args.what == "table" else fuzz(out, args.cases)
 
 
 if __name__ == "__main__":
