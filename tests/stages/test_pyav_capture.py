@@ -167,3 +167,10 @@ def test_mkv_cluster_checksum_catches_damage_the_decoder_cannot_see(tmp_path):
     flagged = {f.index for f in frames if f.damage}
     assert differing <= flagged and 0 in flagged
     assert any("checksum" in f.damage for f in frames)
+
+
+def test_avi_frames_are_counted_not_timed_by_decode_order_stamps():
+    tracker = DamageTracker(fps=10.0, use_stamps=False)
+    frames = [tracker.next_frame(_frame(t, key=i == 0), []).frame for i, t in enumerate([0.1, 0.3, 0.4, 0.2])]
+    assert [(f.index, round(f.time_s, 6), f.damage) for f in frames] == [
+        (0, 0.0, ""), (1, 0.1, ""), (2, 0.2, ""), (3, 0.3, "")]
