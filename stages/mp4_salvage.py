@@ -16,10 +16,6 @@ camera with the same settings. The salvaged frames are written as a raw elementa
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
-from pathlib import Path
-
-import struct
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
