@@ -37,6 +37,11 @@ class CaptureConfig:
     """First back-off delay; doubles after each failed attempt."""
     read_timeout_s: float = 10.0
     """A stream that delivers no frame for this long counts as dropped."""
+    backend: str = "pyav"
+    """Video files: 'pyav' (reports each frame decoded with errors) or 'opencv' (does not)."""
+    reference: str = ""
+    """A complete recording of the same camera: its codec settings salvage an MP4 cut off before
+    its index was written ("" = none: such a file is an error that says so)."""
 
 
 @dataclass

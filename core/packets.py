@@ -22,6 +22,9 @@ class Frame:
     """Capture time in seconds from the container/stream time stamps, from the source start."""
     image: np.ndarray
     """BGR uint8, H x W x 3."""
+    damage: str = ""
+    """Why this frame cannot be trusted ("" = it decoded clean): a decoder error, a corrupt flag,
+    frames missing before it, or a damaged frame it is predicted from (``stages.pyav_capture``)."""
 
 
 @dataclass
@@ -126,7 +129,8 @@ class Track:
     ground_xy_m: tuple[float, float] | None = None
     """Ground position in metres (world x, y) where the camera is calibrated."""
     height_source: str = "network"
-    """'network', 'geometry' (foot and top), 'box' (a vehicle's outline) or 'fused'."""
+    """'network', 'geometry' (foot and top), 'box' (a vehicle's outline), 'fused', or 'none' while
+    the track has no height measurement (height_m NaN): e.g. its top is cut off by the image edge."""
     hits: int = 0
     age: int = 0
     updated: bool = True

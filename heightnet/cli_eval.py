@@ -12,8 +12,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--label", default="HeightNet", help="name of the model in the table")
     parser.add_argument("--ablation", default="", metavar="ONNX",
                         help="a second model shown side by side (e.g. trained without consistency loss)")
-    parser.add_argument("--ablation-label", default="no consistency loss")
-    parser.add_argument("--split", default="test", choices=["test", "train", "all"])
+    parser.add_argument("--ablation-label", default="no consistency loss", metavar="NAME",
+                        help="name of the --ablation model in the table (default: no consistency loss)")
+    parser.add_argument("--split", default="test", choices=["test", "train", "all"],
+                        help="which scenes of DATA: the held-out test split (default), train, or all")
     parser.add_argument("--every", type=int, default=1, metavar="N", help="every Nth frame")
     parser.add_argument("--out", default="runs/eval", metavar="DIR",
                         help="where table.md, table.csv and figure4.png go")

@@ -86,9 +86,12 @@ def train_v2(args: argparse.Namespace, config) -> int:
             if words[:2] != ["heightpipe", "synth"]:
                 raise ConfigError(f"a data command must be a 'heightpipe synth ...' command, got {command!r}")
             print(f"{folder} is missing: rendering it first ({command})")
-            from pipeline.cli import main as heightpipe
+            from synth import cli as synth_cli
 
-            status = heightpipe(words[1:] + ([] if progress else ["--no-progress"]))
+            parser = argparse.ArgumentParser(prog="heightpipe synth")
+            synth_cli.add_arguments(parser)
+            status = synth_cli.main(parser.parse_args(words[2:] + ([] if progress else ["--no-progress"])),
+                                    config)
             if status:
                 raise ConfigError(f"rendering {folder} failed (exit {status})")
         sequences = sorted(list_sequences(folder, split=split), key=lambda s: s.name)

@@ -4,7 +4,8 @@ Runs the stages of ``heightpipe run`` for an uncalibrated camera (the same track
 metres are not used, they need the camera height this command is looking for), collects the head
 and foot points of upright tracked people and fits horizon and camera height with a population
 height prior (stages/self_calibration.py). Prints a ``[camera]`` snippet for config.toml on
-stdout and the fit's report on stderr.
+stdout and the fit's report on stderr; ``--out FILE.json`` also writes a complete calibration
+JSON (intrinsics, distortion, pose) that ``heightpipe run --calibration`` reads.
 """
 
 from __future__ import annotations
@@ -17,7 +18,11 @@ import sys
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", help="video file, image folder or glob, stream URL, or webcam index")
     parser.add_argument("--calibration", metavar="JSON",
-                        help="intrinsic calibration (K, distortion); a pose in it is only compared with")
+                        help="intrinsic calibration (K, distortion) to calibrate with; a pose in the "
+                             "file is not used, only reported beside the estimate")
+    parser.add_argument("--out", metavar="FILE.json",
+                        help="also write the result as a complete calibration JSON (intrinsics, "
+                             "distortion and pose) for `heightpipe run --calibration`")
     parser.add_argument("--fov", type=float, metavar="DEG",
                         help="horizontal field of view, when there is no calibration (default: camera.fov_deg)")
     parser.add_argument("--prior-mean", type=float, default=1.70, metavar="M",
@@ -26,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="spread of people's heights (default 0.09)")
     parser.add_argument("--min-track-frames", type=int, default=5, metavar="N",
                         help="use people seen upright in at least N frames (default 5)")
-    parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N processed frames")
+    parser.add_argument("--max-frames", type=int, metavar="N",
+                        help="stop after N processed frames (0, the default: all)")
     parser.add_argument("--stride", type=int, metavar="N", help="process every Nth frame")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -35,15 +41,14 @@ def main(args: argparse.Namespace, config) -> int:
     from tqdm import tqdm
 
     from core.errors import ConfigError, HeightpipeError
-    from pipeline.run_command import apply_flags
+    from pipeline.run_command import apply_flags, check_capture_limits
     from pipeline.stage_chain import build_stage_chain
     from stages.calibration import ASSUMED_CAMERA_HEIGHT_M, camera_for_run
     from stages.capture import open_source
     from stages.self_calibration import HeadFootCollector, HeightPrior, self_calibrate
 
     apply_flags(args, config)
-    if config.capture.stride < 1:
-        raise ConfigError("capture.stride must be at least 1")
+    check_capture_limits(config)
     if not (0.5 < args.prior_mean < 2.5 and 0.0 < args.prior_std < 0.5):
         raise ConfigError("--prior-mean must be in metres (0.5-2.5) and --prior-std in (0, 0.5)")
 
@@ -84,7 +89,41 @@ def main(args: argparse.Namespace, config) -> int:
                             settings=None)
     print(result.config_snippet(calibration=config.camera.calibration))
     _report(result, config.camera.calibration, width, height)
+    if args.out:
+        write_calibration_json(args.out, result, config.camera.calibration)
+        print(f"heightpipe: wrote {args.out} (use it with `heightpipe run --calibration {args.out}`)",
+              file=sys.stderr)
     return 0
+
+
+def write_calibration_json(path: str, result, calibration: str) -> None:
+    """The fitted camera in the calibration JSON layout of stages/calibration.py, complete: image
+    size, K, the distortion of ``calibration`` (if one was given) and the pose as camera height,
+    pitch and roll. Extra keys record where it came from and how sure the fit is."""
+    import json
+    from pathlib import Path
+
+    from core.errors import HeightpipeError
+    from stages.calibration import load_calibration
+
+    data = {
+        "image_size": [int(result.width), int(result.height)],
+        "K": [[float(v) for v in row] for row in result.K],
+        "camera_height_m": round(float(result.height_m), 4),
+        "pitch_deg": round(float(result.pitch_deg), 3),
+        "roll_deg": round(float(result.roll_deg), 3),
+        "camera_height_std_m": round(float(result.height_std_m), 4),
+        "source": f"heightpipe calibrate: self-calibrated from {result.n_tracks} people "
+                  f"(prior {result.prior.mean_m:.2f} +- {result.prior.std_m:.2f} m), focal {result.focal_source}",
+    }
+    if calibration:
+        dist = load_calibration(calibration).dist
+        if dist is not None:
+            data["dist"] = [float(v) for v in dist]
+    try:
+        Path(path).write_text(json.dumps(data, indent=2) + "\n")
+    except OSError as exc:
+        raise HeightpipeError(f"cannot write {path}: {exc.strerror}") from None
 
 
 def _report(result, calibration: str, width: int, height: int) -> None:

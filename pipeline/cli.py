@@ -18,6 +18,7 @@ from core.errors import HeightpipeError
 # (command, module, one-line help)
 COMMANDS = [
     ("run", "pipeline.run_command", "process a video, image folder, stream or webcam"),
+    ("recover", "pipeline.recover", "make valid files of what a killed run left (PREFIX or FILE.mcap / FILE.rrd)"),
     ("replay", "pipeline.replay", "show an MCAP recording in the rerun viewer (or convert it to .rrd)"),
     ("synth", "synth.cli", "render a synthetic CCTV dataset with exact height ground truth"),
     ("train", "heightnet.cli_train", "train the height network on a synth dataset (resumable)"),

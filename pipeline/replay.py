@@ -12,7 +12,6 @@ writer, no summary) replays up to its last complete chunk, with a warning.
 from __future__ import annotations
 
 import argparse
-import struct
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -23,7 +22,7 @@ from core.config import Config
 from core.errors import HeightpipeError
 
 TOPICS = ("/tracks", "/camera/image", "/camera/calibration", "/camera/height", "/camera/ground",
-          "/camera/matches")
+          "/camera/matches", "/capture/damage")
 """What replay draws; /camera/annotations is redundant with /tracks (boxes are redrawn)."""
 
 
@@ -44,7 +43,8 @@ def main(args: argparse.Namespace, config: Config) -> int:
     print(f"replayed {result.frames} frames from {path} to {target}", file=sys.stderr)
     if result.error:
         print(f"heightpipe: warning: {path} ends early ({result.error}); the recording was "
-              f"probably not closed: replayed the {result.frames} complete frames", file=sys.stderr)
+              f"probably not closed: replayed the {result.frames} complete frames "
+              f"(`heightpipe recover {path}` rewrites it as a valid MCAP)", file=sys.stderr)
     return 0
 
 
@@ -104,40 +104,45 @@ def replay_mcap(path: Path, save: Path | None) -> ReplayResult:
 
 
 def _read_frames(path: Path) -> Iterator[_FrameMessages]:
-    """Messages grouped by log_time (one frame each), raising _TruncatedMcap on a read failure."""
-    from mcap.reader import NonSeekingReader
+    """Messages grouped by log_time (one frame each), raising _TruncatedMcap on a read failure.
+
+    Read in file order through ``pipeline.recover.linear_records``, the reader that
+    ``heightpipe recover`` rewrites an unfinished recording with: the same frames either way.
+    """
+    from mcap.records import Channel, Message, Schema
     from mcap_protobuf.decoder import DecoderFactory
 
+    from pipeline.recover import UnreadableTail, linear_records
+
+    decoders, schemas, channels = DecoderFactory(), {}, {}
+    current: _FrameMessages | None = None
     with open(path, "rb") as stream:
-        reader = NonSeekingReader(stream, validate_crcs=True, decoder_factories=[DecoderFactory()])
-        messages = reader.iter_decoded_messages(topics=TOPICS, log_time_order=False)
-        current: _FrameMessages | None = None
-        while True:
-            try:
-                _schema, channel, message, decoded = next(messages)
-            except StopIteration:
-                break
-            except Exception as exc:  # mcap, zstd, protobuf and struct errors on bad bytes
-                raise _TruncatedMcap(_describe_read_error(exc)) from None
-            if current is None or message.log_time != current.log_time:
-                if current is not None:
-                    yield current
-                current = _FrameMessages(message.log_time)
-            current.by_topic[channel.topic] = decoded
-        if current is not None:
-            yield current
-
-
-def _describe_read_error(exc: Exception) -> str:
-    from mcap.exceptions import EndOfFile, InvalidMagic, RecordLengthLimitExceeded
-
-    if isinstance(exc, InvalidMagic):
-        return "not an MCAP file (wrong magic bytes)"
-    if isinstance(exc, (EndOfFile, struct.error)):
-        return "the file is cut off mid-record"
-    if isinstance(exc, RecordLengthLimitExceeded):  # foxglove-sdk sets a chunk's length on closing it
-        return "it ends in an unfinished chunk"
-    return f"{type(exc).__name__}: {exc}"
+        try:
+            for record in linear_records(stream):
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    channel = channels[record.channel_id]
+                    if channel.topic not in TOPICS:
+                        continue
+                    decode = decoders.decoder_for(channel.message_encoding, schemas.get(channel.schema_id))
+                    if decode is None:
+                        continue
+                    if current is None or record.log_time != current.log_time:
+                        if current is not None:
+                            yield current
+                        current = _FrameMessages(record.log_time)
+                    current.by_topic[channel.topic] = decode(record.data)
+        except UnreadableTail as exc:
+            if current is not None:  # its messages are all there that recovery would keep
+                yield current
+            raise _TruncatedMcap(str(exc)) from None
+        except Exception as exc:  # protobuf errors on bad message bytes
+            raise _TruncatedMcap(f"{type(exc).__name__}: {exc}") from None
+    if current is not None:
+        yield current
 
 
 def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time: int) -> None:
@@ -168,6 +173,8 @@ def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time:
         logger.log_matches(*_match_arrays(matches))
     if record is not None:
         logger.log_tracks(tracks_from_record(record))
+    if (damage := messages.get("/capture/damage")) is not None:
+        logger.log_damage(damage.message)
     logger.end_frame()
 
 

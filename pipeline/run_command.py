@@ -14,10 +14,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", metavar="PREFIX",
                         help="output prefix: writes PREFIX.rrd, PREFIX.mcap, PREFIX.tracks.csv "
                              "(default: recordings/<source name>; an existing folder means FOLDER/<source name>)")
-    parser.add_argument("--camera-height", type=float, metavar="M", help="camera height above the ground in metres")
-    parser.add_argument("--calibration", metavar="JSON", help="OpenCV-convention calibration file")
-    parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N processed frames")
-    parser.add_argument("--stride", type=int, metavar="N", help="process every Nth frame")
+    parser.add_argument("--camera-height", type=float, metavar="M",
+                        help="camera height above the ground in metres; left out (and no --calibration "
+                             "pose): heights use an assumed camera height and are indicative only")
+    parser.add_argument("--calibration", metavar="JSON",
+                        help="calibration JSON: intrinsics K, distortion, optionally the pose (format in the README)")
+    parser.add_argument("--reference", metavar="GOOD.mp4",
+                        help="a complete recording from the same camera and settings: lets an MP4 cut off "
+                             "before its index was written (power loss, full disk) be salvaged")
+    parser.add_argument("--max-frames", type=int, metavar="N",
+                        help="stop after N processed frames (0, the default: all)")
+    parser.add_argument("--stride", type=int, metavar="N", help="process every Nth frame (default 1)")
     parser.add_argument("--rerun", choices=["spawn", "save", "serve", "off"], help="rerun output (default: save)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -28,6 +35,7 @@ FLAG_TO_CONFIG = {
     "calibration": ("camera", "calibration"),
     "fov": ("camera", "fov_deg"),
     "max_frames": ("capture", "max_frames"),
+    "reference": ("capture", "reference"),
     "stride": ("capture", "stride"),
     "rerun": ("output", "rerun"),
 }
@@ -41,6 +49,16 @@ def apply_flags(args: argparse.Namespace, config: Config) -> None:
             setattr(getattr(config, section), key, value)
     if getattr(args, "no_progress", False):
         config.output.progress = False
+
+
+def check_capture_limits(config: Config) -> None:
+    from core.errors import ConfigError
+
+    if config.capture.stride < 1:
+        raise ConfigError("capture.stride (--stride) must be at least 1")
+    if config.capture.max_frames < 0:
+        raise ConfigError(f"capture.max_frames (--max-frames) must be 0 (all frames) or more, "
+                          f"got {config.capture.max_frames}")
 
 
 def default_prefix(source: str, out: str | None, config: Config) -> Path:
@@ -58,13 +76,11 @@ def default_prefix(source: str, out: str | None, config: Config) -> Path:
 
 
 def main(args: argparse.Namespace, config: Config) -> int:
-    from core.errors import ConfigError
     from pipeline.runner import run_pipeline
     from pipeline.summary import format_summary
 
     apply_flags(args, config)
-    if config.capture.stride < 1:
-        raise ConfigError("capture.stride must be at least 1")
+    check_capture_limits(config)
     summary = run_pipeline(args.source, config, default_prefix(args.source, args.out, config))
     print(format_summary(summary), file=sys.stderr)
     if summary.interrupted:

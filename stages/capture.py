@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import glob
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from core.config import CaptureConfig
-from core.errors import SourceError
+from core.errors import ConfigError, SourceError
 from core.packets import Frame
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"}
@@ -34,7 +34,11 @@ class CaptureStats:
     decoded: int = 0
     """Frames decoded (processed or skipped by stride)."""
     failed: int = 0
-    """Frames (or images) that could not be decoded."""
+    """Frames (or images) that could not be decoded, or vanished from the stream."""
+    damaged: int = 0
+    """Frames decoded with errors (concealed by the decoder): processed, heights withheld."""
+    notes: list[str] = field(default_factory=list)
+    """What else went wrong reading the source (one line each)."""
     reconnects: int = 0
     expected: int | None = None
     """Frame count the container header claims, where it has one (not always right)."""
@@ -45,11 +49,13 @@ class CaptureStats:
         text = f"{self.decoded} frames decoded"
         if self.failed:
             text += f", {self.failed} failed to decode"
+        if self.damaged:
+            text += f", {self.damaged} damaged (decoded with errors: heights not measured on them)"
         if self.reached_end and self.expected is not None and self.expected != self.decoded:
             text += f" (header claims {self.expected})"
         if self.reconnects:
             text += f", {self.reconnects} stream reconnects"
-        return text
+        return "; ".join([text, *self.notes])
 
 
 class FrameSource:
@@ -319,4 +325,15 @@ def open_source(spec: str, config: CaptureConfig, image_fps: float = 10.0) -> Fr
         if not paths:
             raise SourceError(f"{path} is a folder without images")
         return ImageFolderSource(paths, str(path), config, image_fps)
-    return VideoFileSource(path, config)
+    if config.backend not in ("pyav", "opencv"):
+        raise ConfigError(f"capture.backend must be 'pyav' or 'opencv', got {config.backend!r}")
+    if config.reference:
+        from stages.mp4_salvage import lacks_index, open_salvaged
+
+        if lacks_index(path):
+            return open_salvaged(path, config)
+    if config.backend == "opencv":
+        return VideoFileSource(path, config)
+    from stages.pyav_capture import PyAVFileSource
+
+    return PyAVFileSource(path, config)

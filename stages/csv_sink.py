@@ -1,6 +1,8 @@
 """PREFIX.tracks.csv: one row per confirmed track per processed frame.
 
 Flushed after every frame, so a crash or kill keeps every frame written before it.
+``frame_damaged`` is 1 on frames decoded with errors: their heights were not measured (the
+track's height is carried over from clean frames) and the box may be off.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from core.packets import FramePacket
 from stages.sink_common import confirmed
 
 CSV_HEADER = ("frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score",
-              "height_m", "height_std_m", "height_source")
+              "height_m", "height_std_m", "height_source", "frame_damaged")
 
 
 class TrackCsvSink:
@@ -30,11 +32,12 @@ class TrackCsvSink:
     def write(self, packet: FramePacket) -> None:
         frame = packet.frame
         for track in confirmed(packet.tracks):
-            x, y, w, h = track.box
+            x, y, w, h = (round(v, 1) + 0.0 for v in track.box)  # + 0.0: no "-0.0" at the border
             self._writer.writerow((
                 frame.index, f"{frame.time_s:.4f}", track.track_id, track.cls,
                 f"{x:.1f}", f"{y:.1f}", f"{w:.1f}", f"{h:.1f}", f"{track.score:.3f}",
-                f"{track.height_m:.3f}", f"{track.height_std_m:.3f}", track.height_source))
+                f"{track.height_m:.3f}", f"{track.height_std_m:.3f}", track.height_source,
+                int(bool(frame.damage))))
         self._file.flush()
 
     def close(self) -> None:

@@ -11,6 +11,7 @@ epoch ns, + the frame's source time):
     /camera/ground        foxglove.RawImage mono8: 255 = ground plane, full frame size
     /camera/annotations   foxglove.ImageAnnotations: confirmed tracks' boxes and labels
     /camera/matches       foxglove.ImageAnnotations: matched features as prev->curr segments
+    /capture/damage       foxglove.Log (warning), only on frames decoded with errors: why
 
 Written with foxglove-sdk (Rust; about twice as fast as the pure-Python mcap writer). Crash
 safety: zstd chunks of at most ``mcap_chunk_size`` bytes, and the open chunk is closed at
@@ -26,18 +27,19 @@ from pathlib import Path
 import foxglove
 import numpy as np
 from foxglove.channels import (CameraCalibrationChannel, CompressedImageChannel,
-                               ImageAnnotationsChannel, RawImageChannel)
+                               ImageAnnotationsChannel, LogChannel, RawImageChannel)
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from foxglove.messages import (CameraCalibration, Color, CompressedImage, ImageAnnotations,
-                               KeyValuePair, Point2, PointsAnnotation, PointsAnnotationType,
+                               KeyValuePair, Log, LogLevel, Point2, PointsAnnotation,
+                               PointsAnnotationType,
                                RawImage, TextAnnotation, Timestamp)
 
 from core.config import OutputConfig
 from core.errors import HeightpipeError
 from core.packets import CameraInfo, FeatureMatches, FramePacket, Track
-from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, MATCH_KIND_KEY,
-                                OBJECT_MATCH_RGB, FrameEncoder, check_output_config, confirmed,
-                                track_label)
+from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC,
+                                MATCH_KIND_KEY, OBJECT_MATCH_RGB, FrameEncoder,
+                                check_output_config, confirmed, damage_text, track_label)
 from stages.track_record import SCHEMA_NAME, build_track_record_type, encode_track_array
 
 FRAME_ID = "camera"
@@ -91,6 +93,7 @@ class McapSink:
                                        metadata={"values": "255 = ground plane, 0 = other"})
         self._annotations = ImageAnnotationsChannel("/camera/annotations", context=context)
         self._matches = ImageAnnotationsChannel("/camera/matches", context=context)
+        self._damage = LogChannel(DAMAGE_TOPIC, context=context)
         self._last_log_time = 0
         self._last_flush_s: float | None = None
         self._closed = False
@@ -123,6 +126,9 @@ class McapSink:
         self._annotations.log(_track_annotations(confirmed(packet.tracks), stamp), log_time=log_time)
         if packet.matches is not None:
             self._matches.log(_match_annotations(packet.matches, stamp), log_time=log_time)
+        if frame.damage:
+            self._damage.log(Log(timestamp=stamp, level=LogLevel.Warning, name="capture",
+                                 message=damage_text(frame)), log_time=log_time)
         self._flush_if_due(frame.time_s)
 
     def _flush_if_due(self, time_s: float) -> None:

@@ -11,6 +11,7 @@ same recording. Entities:
     /camera/tracks      confirmed tracks: boxes, labels "#id 1.72±0.04 m", class colours
     /height             height map in millimetres, shown colour-mapped in metres
     /tracks/<id>/height one height time series per confirmed track
+    /capture/damage     a warning TextLog on each frame decoded with errors
 
 Timelines: ``frame`` (source frame index) and ``time`` (source time, a duration).
 """
@@ -30,9 +31,9 @@ import rerun.blueprint as rrb
 from core.config import OutputConfig
 from core.errors import ConfigError, HeightpipeError
 from core.packets import OBJECT_CLASSES, FramePacket, Track
-from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, OBJECT_MATCH_RGB,
-                                FrameEncoder, check_output_config, class_id, confirmed,
-                                track_label)
+from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC,
+                                OBJECT_MATCH_RGB, FrameEncoder, check_output_config, class_id,
+                                confirmed, damage_text, track_label)
 
 APPLICATION_ID = "heightpipe"
 VIEWER_MEMORY_LIMIT = "2GB"
@@ -125,6 +126,9 @@ class RerunFrameLogger:
                           np.uint8(OBJECT_MATCH_RGB), np.uint8(BACKGROUND_MATCH_RGB))
         self._log("/camera/matches", rr.Arrows2D(origins=prev, vectors=curr - prev, colors=colors))
 
+    def log_damage(self, text: str) -> None:
+        self.rec.log(DAMAGE_TOPIC, rr.TextLog(text, level=rr.TextLogLevel.WARN))
+
     def log_tracks(self, tracks: list[Track]) -> None:
         """Draws the confirmed ones; always logs (an empty list clears last frame's boxes)."""
         shown = confirmed(tracks)
@@ -189,6 +193,8 @@ class RerunSink:
         except (OSError, RuntimeError, ValueError) as exc:
             raise HeightpipeError(f"cannot start rerun output ({mode}): {exc}") from None
         self.logger = RerunFrameLogger(self.rec)
+        self.flush_interval_s = config.flush_interval_s
+        self._last_flush_s: float | None = None
         self._closed = False
 
     def write(self, packet: FramePacket) -> None:
@@ -206,7 +212,23 @@ class RerunSink:
         if packet.matches is not None:
             log.log_matches(packet.matches.prev_pts, packet.matches.curr_pts, packet.matches.on_object)
         log.log_tracks(packet.tracks)
+        if packet.frame.damage:
+            log.log_damage(damage_text(packet.frame))
         log.end_frame()
+        self._flush_if_due(packet.frame.time_s)
+
+    def _flush_if_due(self, time_s: float) -> None:
+        """Pushes rerun's batches to the file every ``flush_interval_s`` of source time, so a hard
+        kill costs about that much of the .rrd, as of the MCAP (200 sink-test frames at 10 fps,
+        flush_interval_s 0.5: 196 frames readable on disk before close(); 59 without flushing)."""
+        if self._last_flush_s is None:
+            self._last_flush_s = time_s
+        elif time_s - self._last_flush_s >= self.flush_interval_s:
+            try:
+                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            except RuntimeError:  # a viewer gone or slow: the file sink has what it needs; close() reports
+                pass
+            self._last_flush_s = time_s
 
     def close(self) -> None:
         """Flushes and finishes the file (footer); idempotent."""

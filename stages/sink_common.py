@@ -11,7 +11,7 @@ import numpy as np
 
 from core.config import OutputConfig
 from core.errors import ConfigError
-from core.packets import OBJECT_CLASSES, FramePacket, Track
+from core.packets import OBJECT_CLASSES, Frame, FramePacket, Track
 
 CLASS_COLORS_RGB = {"other": (200, 200, 200), "person": (255, 80, 80),
                     "cyclist": (255, 200, 0), "vehicle": (80, 160, 255)}
@@ -19,6 +19,8 @@ CLASS_COLORS_RGB = {"other": (200, 200, 200), "person": (255, 80, 80),
 OBJECT_MATCH_RGB = (255, 60, 60)
 BACKGROUND_MATCH_RGB = (60, 220, 255)
 """Feature-match colours: on a moving object / on the static background."""
+DAMAGE_TOPIC = "/capture/damage"
+"""MCAP topic and rerun entity of the damaged-frame log entries."""
 MATCH_KIND_KEY = "kind"
 """Metadata key of each /camera/matches PointsAnnotation in MCAP: 'object' or 'background'."""
 
@@ -82,6 +84,10 @@ def height_to_mm(height_m: np.ndarray, scale: int) -> np.ndarray:
     millimetres = height * np.float32(1000.0) + np.float32(0.5)
     millimetres[~np.isfinite(millimetres)] = 0.0
     return np.clip(millimetres, 0.0, 65535.0, out=millimetres).astype(np.uint16)
+
+
+def damage_text(frame: Frame) -> str:
+    return f"frame {frame.index} damaged, heights not measured: {frame.damage}"
 
 
 def confirmed(tracks: list[Track]) -> list[Track]:

@@ -40,6 +40,7 @@ One frame, in order:
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter, deque
 from dataclasses import dataclass, field
 
@@ -140,7 +141,7 @@ class _TrackState:
             height_std_m=self.height.std_m if has_height else float("inf"),
             confirmed=self.confirmed,
             ground_xy_m=self.ground_xy_m,
-            height_source=self.height.source if has_height else "network",
+            height_source=self.height.source if has_height else "none",
             hits=self.hits,
             age=self.age,
             updated=self.updated,
@@ -537,7 +538,10 @@ class TrackingStage:
 
     def process(self, packet: FramePacket) -> FramePacket:
         height, width = packet.frame.image.shape[:2]
-        packet.tracks = self.tracker.update(packet.detections, packet.matches, frame_size=(width, height),
+        detections = packet.detections
+        if packet.frame.damage:
+            detections = [without_heights(detection) for detection in detections]
+        packet.tracks = self.tracker.update(detections, packet.matches, frame_size=(width, height),
                                             frame_interval_s=self._frame_interval(packet.frame.time_s))
         return packet
 
@@ -550,3 +554,10 @@ class TrackingStage:
             self._intervals.append(time_s - self._last_time_s)
         self._last_time_s = time_s
         return float(np.median(self._intervals)) if self._intervals else None
+
+
+def without_heights(detection: Detection) -> Detection:
+    """The detection with its height measurements withheld: on a frame decoded with errors the
+    boxes still carry the tracks along, but no height measured on concealed pixels is fused."""
+    return dataclasses.replace(detection, height_m=float("nan"), geometry_height_m=None,
+                               geometry_min_height_m=None, vehicle_height_m=None)

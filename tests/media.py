@@ -100,6 +100,21 @@ def make_sink_packet(index: int, with_maps: bool = True, with_ground: bool = Tru
         tracks=tracks)
 
 
+def write_unfinished_recording(path: Path, frames: int = 35) -> bytes:
+    """An MCAP of ``frames`` sink packets at 10 fps (chunks closed every second) whose last third
+    is cut off, as a killed writer leaves it; returns the bytes left."""
+    from core.config import OutputConfig
+    from stages.mcap_sink import McapSink
+
+    sink = McapSink(path, OutputConfig(flush_interval_s=1.0))
+    for index in range(frames):
+        sink.write(make_sink_packet(index))
+    sink.close()
+    data = path.read_bytes()[:path.stat().st_size * 2 // 3]
+    path.write_bytes(data)
+    return data
+
+
 def rrd_rows(path: Path, extra_columns: tuple[str, ...] = ()) -> dict[str, list[tuple[int, dict]]]:
     """Temporal rows of an .rrd per entity, (frame, {component: value}), sorted by frame.
 

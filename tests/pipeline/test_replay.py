@@ -15,7 +15,7 @@ from stages.mcap_sink import McapSink
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder
 
-from media import make_sink_packet, rrd_rows
+from media import make_sink_packet, rrd_rows, write_unfinished_recording
 
 
 
@@ -73,12 +73,7 @@ def test_replay_draws_what_the_live_sink_draws(tmp_path, capsys):
 
 def test_unfinished_recording_replays_its_complete_chunks(tmp_path, capsys):
     path = tmp_path / "run.mcap"
-    sink = McapSink(path, OutputConfig(flush_interval_s=1.0))
-    for index in range(35):  # 3.5 s at 10 fps: chunks closed at 1, 2 and 3 s
-        sink.write(make_packet(index))
-    sink.close()
-    data = path.read_bytes()
-    path.write_bytes(data[:len(data) * 2 // 3])
+    write_unfinished_recording(path)  # 3.5 s at 10 fps: chunks closed at 1, 2 and 3 s
 
     assert cli.main(["replay", str(path), "--save", str(tmp_path / "cut.rrd")]) == 0
     err = capsys.readouterr().err
@@ -99,3 +94,29 @@ def test_missing_or_corrupt_mcap_is_a_one_line_error(tmp_path, capsys, content, 
     assert cli.main(["replay", str(path), "--save", str(tmp_path / "out.rrd")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("heightpipe: error: ") and message in err and "\n" not in err
+
+
+def test_damaged_frames_are_marked_in_mcap_live_rrd_and_replay(tmp_path, capsys):
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    config = OutputConfig()
+    live = RerunSink(tmp_path / "run.rrd", "save", config, "run")
+    recording = McapSink(tmp_path / "run.mcap", config)
+    for index in range(6):
+        packet = make_packet(index)
+        packet.frame.damage = "decoder flags it corrupt" if index in (2, 3) else ""
+        live.write(packet)
+        recording.write(packet)
+    live.close()
+    recording.close()
+
+    with open(tmp_path / "run.mcap", "rb") as stream:
+        logs = [(decoded.level, decoded.message) for _, _, _, decoded in make_reader(
+            stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=["/capture/damage"])]
+    assert logs == [(3, "frame 2 damaged, heights not measured: decoder flags it corrupt"),
+                    (3, "frame 3 damaged, heights not measured: decoder flags it corrupt")]
+    assert cli.main(["replay", str(tmp_path / "run.mcap"), "--save", str(tmp_path / "replayed.rrd")]) == 0
+    for rrd in ("run.rrd", "replayed.rrd"):
+        rows = rrd_rows(tmp_path / rrd)["/capture/damage"]
+        assert [(frame, row["TextLog:level"]) for frame, row in rows] == [(2, ["WARN"]), (3, ["WARN"])]

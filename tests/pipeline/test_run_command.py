@@ -13,7 +13,7 @@ from media import (REPO_ROOT, default_sigint, make_tiny_height_model, write_movi
                    write_truncated_avi)
 
 CSV_HEADER = ["frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score", "height_m", "height_std_m",
-              "height_source"]
+              "height_source", "frame_damaged"]
 
 
 def heightpipe(*args, timeout=120):
@@ -172,3 +172,11 @@ def test_kill_9_leaves_mcap_recoverable_to_the_last_second(tmp_path, model_flag)
     last_frame = max(int(row[0]) for row in rows[1:])
     # flush_interval_s = 0.5 s of a 10 fps video: at most ~5 frames (+ the one in flight) lost
     assert _recoverable_images(f"{prefix}.mcap") >= last_frame + 1 - 7
+
+
+@pytest.mark.parametrize("flag, message", [
+    (["--max-frames", "-1"], "capture.max_frames (--max-frames) must be 0 (all frames) or more"),
+    (["--stride", "0"], "capture.stride (--stride) must be at least 1"),
+])
+def test_negative_limits_are_rejected(box_video, model_flag, flag, message):
+    assert_clean_error(heightpipe("run", box_video, *flag, *model_flag), message)

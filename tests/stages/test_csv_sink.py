@@ -11,11 +11,11 @@ from core.errors import HeightpipeError
 from core.packets import CameraInfo, Frame, FramePacket, Track
 from stages.csv_sink import TrackCsvSink
 
-HEADER = "frame,time_s,track_id,class,x,y,w,h,score,height_m,height_std_m,height_source"
+HEADER = "frame,time_s,track_id,class,x,y,w,h,score,height_m,height_std_m,height_source,frame_damaged"
 
 
-def make_packet(index: int, tracks: list[Track]) -> FramePacket:
-    return FramePacket(frame=Frame(index, index / 25, np.zeros((48, 64, 3), np.uint8)),
+def make_packet(index: int, tracks: list[Track], damage: str = "") -> FramePacket:
+    return FramePacket(frame=Frame(index, index / 25, np.zeros((48, 64, 3), np.uint8), damage=damage),
                        camera=CameraInfo(64, 48), tracks=tracks)
 
 
@@ -27,16 +27,17 @@ def test_rows_are_confirmed_tracks_and_reach_disk_every_frame(tmp_path):
     sink.write(make_packet(3, [Track(7, (11.0, 20.5, 5.0, 12.5), "person", 1.7234, 0.0412,
                                      score=0.9, confirmed=True),
                                Track(9, (40.0, 30.0, 8.0, 8.0), "vehicle", 1.41, 0.2, confirmed=True,
-                                     height_source="fused")]))
+                                     height_source="fused")], damage="decoder flags it corrupt"))
     # Before close(): what a crash would leave behind.
     lines = path.read_text().splitlines()
     assert lines[0] == HEADER
-    assert lines[1:] == ["3,0.1200,7,person,11.0,20.5,5.0,12.5,0.900,1.723,0.041,network",
-                         "3,0.1200,9,vehicle,40.0,30.0,8.0,8.0,1.000,1.410,0.200,fused"]
-    sink.write(make_packet(4, []))
+    assert lines[1:] == ["3,0.1200,7,person,11.0,20.5,5.0,12.5,0.900,1.723,0.041,network,1",
+                         "3,0.1200,9,vehicle,40.0,30.0,8.0,8.0,1.000,1.410,0.200,fused,1"]
+    sink.write(make_packet(4, [Track(9, (40.0, 30.0, 8.0, 8.0), "vehicle", 1.41, 0.2, confirmed=True)]))
     sink.close()
     rows = list(csv.DictReader(path.open()))
-    assert len(rows) == 2 and float(rows[1]["height_m"]) == pytest.approx(1.41)
+    assert len(rows) == 3 and float(rows[1]["height_m"]) == pytest.approx(1.41)
+    assert [row["frame_damaged"] for row in rows] == ["1", "1", "0"]
 
 
 def test_unwritable_path_is_a_clear_error(tmp_path):

@@ -473,3 +473,19 @@ def test_the_geometry_bias_prior_is_its_per_object_part_not_the_shared_camera_he
     prior_n, prior_g = 0.2 * 1.50, 0.05
     expected = (prior_n ** 2 * 1.80 + prior_g ** 2 * 1.50) / (prior_n ** 2 + prior_g ** 2)
     assert tracks[0].height_m == pytest.approx(expected, abs=0.01)
+
+
+def test_damaged_frames_carry_the_track_but_fuse_no_height():
+    stage = TrackingStage(TrackingConfig(min_hits=1))
+    image = np.zeros((240, 320, 3), np.uint8)
+    heights = []
+    for i in range(20):
+        damage = "decoder flags it corrupt" if i >= 10 else ""
+        detection = _detection(10 + 3 * i, 10, 3.0 if damage else 1.7)   # concealment: a wild height
+        detection.geometry_height_m, detection.geometry_noise_m = detection.height_m, 0.1
+        packet = stage.process(FramePacket(Frame(i, i / 10, image, damage=damage), CameraInfo(320, 240),
+                                           detections=[detection]))
+        assert len(packet.tracks) == 1
+        heights.append(packet.tracks[0].height_m)
+    assert heights[10:] == [heights[9]] * 10            # no height fused on a damaged frame
+    assert packet.tracks[0].box[0] > 60                 # while the box still follows the object
