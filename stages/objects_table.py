@@ -54,15 +54,20 @@ class ObjectRow:
 
     @classmethod
     def from_csv(cls, record: dict[str, str]) -> ObjectRow:
-        return cls(int(record["track_id"]), record["class"], float(record["height_m"]),
-                   float(record["height_std_m"]), record["height_source"], float(record["first_time_s"]),
+        return cls(int(record["track_id"]), record["class"], _float(record["height_m"]),
+                   _float(record["height_std_m"]), record["height_source"], float(record["first_time_s"]),
                    float(record["last_time_s"]), int(record["frames_seen"]), int(record["frames_measured"]),
-                   float(record["ground_x_m"] or "nan"), float(record["ground_y_m"] or "nan"),
+                   _float(record["ground_x_m"]), _float(record["ground_y_m"]),
                    [name for name in record["rules_fired"].split(";") if name])
 
 
 def _num(value: float, digits: int = 3) -> str:
+    """Unknown (NaN, infinite) values are empty cells."""
     return f"{value:.{digits}f}" if math.isfinite(value) else ""
+
+
+def _float(text: str) -> float:
+    return float(text) if text else math.nan
 
 
 class ObjectTable:
