@@ -31,10 +31,19 @@ START_TIMEOUT_S = 20.0
 
 
 def _rerun_executable() -> str:
-    """The ``rerun`` CLI of the installed rerun-sdk (next to this Python first)."""
-    beside = Path(sys.executable).with_name("rerun")
-    if beside.is_file():
-        return str(beside)
+    """The rerun binary of the installed rerun-sdk.
+
+    Not the ``rerun`` script on PATH: that is a Python wrapper that starts the binary as its own
+    child, so stopping the wrapper would leave the server running.
+    """
+    try:
+        import rerun_cli
+
+        binary = Path(rerun_cli.__file__).with_name("rerun")
+        if binary.is_file():
+            return str(binary)
+    except ImportError:
+        pass
     found = shutil.which("rerun")
     if found is None:
         raise HeightpipeError("the rerun command (from rerun-sdk) was not found: cannot serve the web viewer")

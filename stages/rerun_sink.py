@@ -10,7 +10,7 @@ same recording. Entities:
     /camera/matches     matched features, arrows from the previous to this frame
     /camera/tracks      confirmed tracks: boxes labelled "1.72 m ±4 cm" (+ "#12 person, geometry"
                         when the box has room), coloured by quality: settled / settling / no height
-    /camera/events      a marker on each object that fired a height rule, for a few seconds
+    /camera/events      a magenta frame around each object that fired a height rule, for a few seconds
     /height             height map in millimetres, shown colour-mapped in metres
     /tracks/<id>/height one height time series per confirmed track; cleared while it coasts
     /events             height-rule firings as a text log
@@ -49,6 +49,8 @@ FLUSH_TIMEOUT_S = 30.0
 EVENT_MARKER_S = 3.0
 """An event's marker stays on the frame this long (source time)."""
 EVENT_RGB = (255, 40, 200)
+EVENT_MARKER_PAD_PX = 6.0
+"""The marker is a thick magenta frame this far around the object's box."""
 
 
 def has_display() -> bool:
@@ -194,11 +196,13 @@ class RerunFrameLogger:
             text = (f"{event['rule']}: #{event['track_id']} {event['class']} "
                     f"{height_text(event['height_m'], event['height_std_m'])} ({event['height_source']})")
             self.rec.log("/events", rr.TextLog(text, level=rr.TextLogLevel.WARN))
-        centres = [(e["box"][0] + e["box"][2] / 2, e["box"][1] + e["box"][3] / 2) for e in events]
-        radii = [max(6.0, 0.6 * max(e["box"][2], e["box"][3])) for e in events]
-        self.rec.log("/camera/events", rr.Points2D(
-            centres, radii=radii, colors=[EVENT_RGB] * len(events),
-            labels=[e["rule"] for e in events], show_labels=True))
+        pad = EVENT_MARKER_PAD_PX
+        frames = [(e["box"][0] - pad, e["box"][1] - pad, e["box"][2] + 2 * pad, e["box"][3] + 2 * pad)
+                  for e in events]
+        self.rec.log("/camera/events", rr.Boxes2D(
+            array=np.array(frames, dtype=np.float32), array_format=rr.Box2DFormat.XYWH,
+            colors=[EVENT_RGB] * len(events), radii=2.0, labels=[e["rule"] for e in events],
+            show_labels=True))
         self._marker_until_s = self._time_s + EVENT_MARKER_S
 
 

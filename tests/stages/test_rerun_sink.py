@@ -79,7 +79,8 @@ def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
     assert [frame for frame, _ in rows["/events"]] == [8]
     assert rows["/events"][0][1]["TextLog:text"] == ["tall: #1 person 1.72 m \u00b14 cm (geometry)"]
     marker = rows["/camera/events"][0][1]
-    assert marker["Points2D:positions"] == [pytest.approx([25.0, 20.0])]
+    assert marker["Boxes2D:half_sizes"] == [pytest.approx([11.0, 16.0])]
+    assert marker["Boxes2D:centers"] == [pytest.approx([25.0, 20.0])]
     status = [(frame, row["TextDocument:text"][0]) for frame, row in rows["/status"]]
     assert [frame for frame, _ in status] == [0, 6], "the camera state is logged when it changes"
     assert "camera height given" in status[0][1] and "calibrated" in status[1][1]
