@@ -180,9 +180,7 @@ def build_sinks(outputs: RunOutputs, config: Config, recording_name: str,
     sinks: list[tuple[str, object]] = []
     try:
         if outputs.rrd is not None:
-            from stages.rerun_sink import RerunSink
-
-            from stages.rerun_sink import web_grpc_url
+            from stages.rerun_sink import RerunSink, web_grpc_url
 
             web_url = web_grpc_url(config.web.bind, config.web.grpc_port) if config.output.rerun == "web" else None
             sinks.append(("rerun", RerunSink(outputs.rrd, config.output.rerun, config.output, recording_name,
