@@ -97,8 +97,12 @@ class LiveViewResult:
 
 
 def watch_live_run(source: Path, out_prefix: Path, extra_args: list[str] = (), timeout_s: float = 600.0,
-                   every_s: float = 5.0) -> LiveViewResult:
-    """Runs ``heightpipe run SOURCE --rerun web``, watches it in headless Chromium, stops the run."""
+                   every_s: float = 5.0, reload_s: float = 240.0) -> LiveViewResult:
+    """Runs ``heightpipe run SOURCE --rerun web``, watches it in headless Chromium, stops the run.
+
+    The page is opened once the run has written its first tracks, and reloaded when it shows no
+    boxes for ``reload_s`` (on a loaded machine the viewer was seen stuck on its welcome page).
+    """
     import cv2
     from selenium import webdriver
     from selenium.common.exceptions import WebDriverException
@@ -125,13 +129,26 @@ def watch_live_run(source: Path, out_prefix: Path, extra_args: list[str] = (), t
         options.binary_location = _find("chromium")
         for flag in CHROMIUM_FLAGS:
             options.add_argument(flag)
+        tracks_csv = Path(f"{out_prefix}.tracks.csv")
+        started = time.monotonic()
+        while run.poll() is None and time.monotonic() - started < timeout_s:
+            if tracks_csv.is_file() and tracks_csv.read_text().count("\n") > 1:
+                break
+            time.sleep(1.0)
         driver = webdriver.Chrome(service=Service(_find("chromedriver")), options=options)
         driver.set_page_load_timeout(timeout_s)
-        opened = time.monotonic()
+        opened = loaded = time.monotonic()
         driver.get(result.url)
         best_pixels = -1
         while time.monotonic() - opened < timeout_s and run.poll() is None:
             time.sleep(every_s)
+            if time.monotonic() - loaded > reload_s:
+                try:
+                    driver.refresh()
+                except WebDriverException:
+                    pass
+                loaded = time.monotonic()
+                continue
             try:
                 png = driver.get_screenshot_as_png()
             except WebDriverException:  # the page is busy (compiling the viewer, first render)
