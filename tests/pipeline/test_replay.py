@@ -107,3 +107,25 @@ def test_missing_or_corrupt_mcap_is_a_one_line_error(tmp_path, capsys, content, 
     assert cli.main(["replay", str(path), "--save", str(tmp_path / "out.rrd")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("heightpipe: error: ") and message in err and "\n" not in err
+
+
+def test_replay_serves_the_web_viewer(tmp_path):
+    import sys
+    import urllib.parse
+
+    from bench.live_view import free_port
+    from media import REPO_ROOT
+
+    recording = McapSink(tmp_path / "run.mcap", OutputConfig())
+    for index in range(4):
+        recording.write(make_packet(index))
+    recording.close()
+    web_port, grpc_port = free_port(), free_port()
+    result = subprocess.run(
+        [sys.executable, "-m", "pipeline.cli", "replay", str(tmp_path / "run.mcap"), "--web",
+         "--set", f"web.web_port={web_port}", "--set", f"web.grpc_port={grpc_port}",
+         "--set", "web.keep_serving=false"], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    proxy = urllib.parse.quote(f"rerun+http://127.0.0.1:{grpc_port}/proxy", safe="")
+    assert f"replayed 4 frames from {tmp_path / 'run.mcap'} to http://127.0.0.1:{web_port}/?url={proxy}" \
+        in result.stderr
