@@ -92,8 +92,9 @@ class LiveViewResult:
     """From opening the page to the first screenshot with boxes (None: never)."""
     run_output: str
     run_exit: int | None
-    """130: the run was still processing frames when it was stopped (the view was live)."""
     url: str
+    run_alive: bool = False
+    """The run was still processing frames when the screenshot with boxes was taken."""
 
 
 def watch_live_run(source: Path, out_prefix: Path, extra_args: list[str] = (), timeout_s: float = 600.0,
@@ -111,7 +112,8 @@ def watch_live_run(source: Path, out_prefix: Path, extra_args: list[str] = (), t
 
     web_port, grpc_port = free_port(), free_port()
     command = [sys.executable, "-m", "pipeline.cli", "run", str(source), "--out", str(out_prefix),
-               "--rerun", "web", "--no-progress", "--set", f"web.web_port={web_port}",
+               "--rerun", "web", "--no-progress", "--set", "web.keep_serving=false",
+               "--set", f"web.web_port={web_port}",
                "--set", f"web.grpc_port={grpc_port}", *extra_args]
     run = subprocess.Popen(command, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     output: list[str] = []
@@ -160,6 +162,7 @@ def watch_live_run(source: Path, out_prefix: Path, extra_args: list[str] = (), t
             if pixels >= MIN_BOX_PIXELS and frame_shown(shot):
                 result.screenshot, result.box_pixels = shot, pixels
                 result.seconds_to_view = time.monotonic() - opened
+                result.run_alive = run.poll() is None  # keep_serving is off: alive = still processing
                 break
         return result
     finally:
@@ -168,7 +171,7 @@ def watch_live_run(source: Path, out_prefix: Path, extra_args: list[str] = (), t
         if run.poll() is None:
             run.send_signal(signal.SIGINT)  # exit 130: it was stopped mid-run; 0: it had finished
         try:
-            rest, _ = run.communicate(timeout=120)
+            rest, _ = run.communicate(timeout=300)  # it flushes the viewer's backlog first
         except subprocess.TimeoutExpired:
             run.kill()
             rest, _ = run.communicate()
@@ -196,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     cv2.imwrite(str(args.out), cv2.cvtColor(result.screenshot, cv2.COLOR_RGB2BGR))
     seconds = "never" if result.seconds_to_view is None else f"{result.seconds_to_view:.0f} s"
-    live = "yes" if result.run_exit == 130 else f"no (exit {result.run_exit})"
+    live = "yes" if result.run_alive else "no"
     print(f"| source | boxes in the frame panel | page open to boxes | run still processing |\n"
           f"|---|---|---|---|\n| {args.source.name} | {result.box_pixels} px of box colours "
           f"(>= {MIN_BOX_PIXELS} needed) | {seconds} | {live} |")

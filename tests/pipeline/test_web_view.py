@@ -89,4 +89,4 @@ def test_headless_chromium_shows_the_frame_with_boxes_during_a_run(tmp_path):
     assert result.seconds_to_view is not None, \
         f"no boxes in the frame panel ({result.box_pixels} px of box colours): {result.run_output[-2000:]}"
     assert result.box_pixels >= MIN_BOX_PIXELS
-    assert result.run_exit == 130, "the screenshot was taken while the run was still processing frames"
+    assert result.run_alive, "the screenshot was taken while the run was still processing frames"
