@@ -75,14 +75,6 @@ def box_pixels(screenshot: np.ndarray) -> int:
     return int(hits.sum())
 
 
-def frame_shown(screenshot: np.ndarray) -> bool:
-    """The frame panel holds an image (not the empty dark viewer background)."""
-    rows, cols = screenshot.shape[:2]
-    left, top, right, bottom = FRAME_PANEL
-    panel = screenshot[int(top * rows):int(bottom * rows), int(left * cols):int(right * cols)]
-    return float(panel.std()) > 20.0
-
-
 @dataclass
 class LiveViewResult:
     screenshot: np.ndarray | None
@@ -159,7 +151,7 @@ def watch_live_run(source: Path, out_prefix: Path, extra_args: list[str] = (), t
             pixels = box_pixels(shot)
             if pixels > best_pixels:
                 result.screenshot, result.box_pixels, best_pixels = shot, pixels, pixels
-            if pixels >= MIN_BOX_PIXELS and frame_shown(shot):
+            if pixels >= MIN_BOX_PIXELS:  # rerun's welcome page and an empty view have none
                 result.screenshot, result.box_pixels = shot, pixels
                 result.seconds_to_view = time.monotonic() - opened
                 result.run_alive = run.poll() is None  # keep_serving is off: alive = still processing
