@@ -169,13 +169,18 @@ class OutputConfig:
     directory: str = "recordings"
     """Where `heightpipe run` writes when --out is not given."""
     rerun: str = "save"
-    """'save' (.rrd file), 'spawn' (viewer + file), 'serve' (gRPC + web viewer + file) or 'off'."""
+    """'save' (.rrd file), 'spawn' (viewer + file), 'web' (rerun's web viewer served as set in
+    [web], + file), 'serve' (gRPC + web viewer on all interfaces, fixed ports, + file) or 'off'."""
     mcap: bool = True
     """Write PREFIX.mcap."""
     csv: bool = True
     """Write PREFIX.tracks.csv."""
-    jpeg_quality: int = 75
-    """JPEG quality of the frames stored in the recordings (75: MCAP under 2 GB per hour of the 640x360 sample)."""
+    objects: bool = True
+    """Write PREFIX.objects.csv: one row per confirmed track (the table to hand on)."""
+    ground_overlay: bool = False
+    """Tint the ground plane in the rerun frame view (its layer can be toggled there either way)."""
+    jpeg_quality: int = 85
+    """JPEG quality of the frames stored in the recordings."""
     mcap_chunk_size: int = 1048576
     """MCAP chunk size in bytes: smaller chunks lose less on a hard kill."""
     flush_interval_s: float = 1.0
@@ -184,6 +189,64 @@ class OutputConfig:
     """Store the height map at 1/N resolution in the recordings (1 = full)."""
     progress: bool = True
     """Show a progress bar on stderr."""
+
+
+@dataclass
+class WebConfig:
+    """Where ``--rerun web`` (and ``replay --web``) serve rerun's web viewer."""
+
+    bind: str = "127.0.0.1"
+    """Address to listen on: loopback by default; "0.0.0.0" lets other machines watch."""
+    web_port: int = 9090
+    """HTTP port of the web viewer page."""
+    grpc_port: int = 9876
+    """Port the browser streams the recording from (rerun's gRPC proxy)."""
+    memory_limit: str = "1GB"
+    """The server keeps this much recent data for browsers that connect late (oldest dropped)."""
+    keep_serving: bool = True
+    """After the run or replay ends, keep serving until Ctrl-C so browsers can still look."""
+
+
+@dataclass
+class EventsConfig:
+    """Where height-rule events go besides PREFIX.events.jsonl, MCAP and rerun."""
+
+    webhook_url: str = ""
+    """POST each event as JSON to this URL ("" = no webhook)."""
+    webhook_timeout_s: float = 2.0
+    """One POST attempt gives up after this long."""
+    webhook_retries: int = 3
+    """Attempts after the first, with back-off, before an event is given up (it stays in the JSONL)."""
+    webhook_backoff_s: float = 0.5
+    """First back-off delay; doubles after each failed attempt."""
+    webhook_queue: int = 1000
+    """Events waiting for the webhook at most; beyond that new ones are not posted (still in the JSONL)."""
+
+
+@dataclass
+class RuleConfig:
+    """One ``[[rules]]`` entry: when a confirmed track's height is in range (in the zone) long enough."""
+
+    name: str = ""
+    cls: str = ""
+    """Object class ('person', 'cyclist', 'vehicle', 'other'; "" = any). Spelled ``class`` in TOML."""
+    min_height_m: float = 0.0
+    """Fires at or above this height (0 = no lower bound)."""
+    max_height_m: float = 0.0
+    """... and at or below this height (0 = no upper bound)."""
+    max_std_m: float = 0.0
+    """Only once the height's standard deviation is at most this (0 = any): a settled height."""
+    zone: list[list[float]] = field(default_factory=list)
+    """Polygon [[x, y], ...] the track's foot point must lie in (empty = anywhere)."""
+    zone_frame: str = "image"
+    """'image' (pixels of the source frame) or 'ground' (metres on the ground plane; calibrated cameras)."""
+    min_duration_s: float = 0.0
+    """The condition must hold this long (source time) ..."""
+    min_frames: int = 1
+    """... and for this many processed frames in a row before the rule fires."""
+    cooldown_s: float = 0.0
+    """After firing for a track, the rule fires for it again only after the condition broke off and
+    this much time passed (0 = once per track)."""
 
 
 @dataclass
@@ -338,6 +401,10 @@ class Config:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    web: WebConfig = field(default_factory=WebConfig)
+    events: EventsConfig = field(default_factory=EventsConfig)
+    rules: list[RuleConfig] = field(default_factory=list)
+    """``[[rules]]``: height rules; each firing becomes an event (stages/height_rules.py)."""
     synth: SynthConfig = field(default_factory=SynthConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     train_v2: TrainV2Config = field(default_factory=TrainV2Config)
@@ -365,12 +432,32 @@ MOVED_KEYS = {("tracking", f.name): "objects" for f in dataclasses.fields(Object
 """(old section, key) -> the section that holds the key now (object extraction left [tracking])."""
 
 
+def _rule(values: Any, where: str) -> RuleConfig:
+    """One [[rules]] table; its ``class`` key is the dataclass's ``cls``."""
+    if not isinstance(values, dict):
+        raise ConfigError(f"{where} must be a table")
+    rule = RuleConfig()
+    hints = typing.get_type_hints(RuleConfig)
+    for key, value in values.items():
+        name = "cls" if key == "class" else key
+        if name not in hints or key == "cls":
+            raise ConfigError(f"unknown key '{key}' in {where} (known: "
+                              f"{', '.join('class' if k == 'cls' else k for k in hints)})")
+        setattr(rule, name, _coerce(f"{where}.{key}", value, hints[name]))
+    return rule
+
+
 def _apply(config: Config, table: dict[str, Any], source: str) -> None:
     sections = {f.name: f for f in dataclasses.fields(Config)}
     for section_name, values in table.items():
         if section_name not in sections:
             raise ConfigError(f"unknown config section [{section_name}] in {source} "
                               f"(known: {', '.join(sections)})")
+        if section_name == "rules":
+            if not isinstance(values, list):
+                raise ConfigError(f"rules in {source} must be an array of tables: [[rules]]")
+            config.rules = [_rule(v, f"[[rules]] #{i + 1} in {source}") for i, v in enumerate(values)]
+            continue
         if not isinstance(values, dict):
             raise ConfigError(f"[{section_name}] in {source} must be a table")
         section = getattr(config, section_name)

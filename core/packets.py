@@ -152,5 +152,7 @@ class FramePacket:
     matches: FeatureMatches | None = None
     detections: list[Detection] = field(default_factory=list)
     tracks: list[Track] = field(default_factory=list)
+    events: list = field(default_factory=list)
+    """Height-rule firings this frame (``stages.height_rules.RuleEvent``)."""
     timings_ms: dict[str, float] = field(default_factory=dict)
     """Per-stage wall time for this frame (for the summary and the benchmark)."""

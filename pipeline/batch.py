@@ -4,7 +4,7 @@ One task per video (tracking is sequential within a video), each running ``run_p
 exactly as `heightpipe run` does. DIR holds:
 
     manifest.json             what was done with each input (pipeline/batch_manifest.py)
-    videos/<name>.rrd|.mcap|.tracks.csv   each video's outputs, renamed in only when complete
+    videos/<name>.rrd|.mcap|.tracks.csv|.objects.csv   each video's outputs, renamed in only when complete
     .partial/                 outputs of videos in progress; emptied at the start of a run
     tracks.csv, videos.csv    the whole archive: one row per track, one per video (+ .parquet)
 
@@ -267,9 +267,9 @@ def _check_config(config: Config) -> None:
         raise ConfigError("capture.stride must be at least 1")
     if config.output.rerun not in ("save", "off"):
         raise ConfigError(f"batch writes files only: output.rerun must be 'save' or 'off', not {config.output.rerun!r}")
-    if not config.output.csv:
-        raise ConfigError("batch needs output.csv = true: the archive's tracks table is built from "
-                          "each video's tracks.csv")
+    if not config.output.objects:
+        raise ConfigError("batch needs output.objects = true: the archive's tracks table is built from "
+                          "each video's objects.csv")
 
 
 def _plan(inputs: list[Path], manifest: Manifest, fingerprint: str, config: Config, options: BatchOptions,

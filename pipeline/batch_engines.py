@@ -149,7 +149,7 @@ def process_video(task: VideoTask, report: Callable[[int, int | None, float], No
     if summary is not None:
         result.frames = summary.frames
         result.failed_frames = summary.capture.failed
-        result.tracks = len(summary.confirmed_tracks)
+        result.tracks = len(summary.objects.rows)
         result.camera = summary.camera_source
         if summary.interrupted:
             result.status, result.error = INTERRUPTED, "stopped before the video was finished"

@@ -1,18 +1,21 @@
 """The archive-wide result of a batch: every track of every video in one table.
 
-Built from the manifest and each finished video's PREFIX.tracks.csv (one row per confirmed
-track per frame), after every batch run, so the tables always describe exactly what the
-manifest says is done. CSV is always written; Parquet too where pyarrow is installed.
+Built from the manifest and each finished video's PREFIX.objects.csv (one row per confirmed
+track, the same table `heightpipe run` writes and prints its summary from), after every batch
+run, so the tables always describe exactly what the manifest says is done. CSV is always
+written; Parquet too where pyarrow is installed.
 """
 
 from __future__ import annotations
 
 import csv
+import math
 import os
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from pipeline.batch_manifest import DONE, Manifest
+from stages.objects_table import read_objects_csv
 
 TRACKS_NAME = "tracks"
 VIDEOS_NAME = "videos"
@@ -20,20 +23,27 @@ VIDEOS_NAME = "videos"
 
 @dataclass
 class TrackRow:
+    """A row of a video's PREFIX.objects.csv (see ``stages.objects_table.ObjectRow``) with its video."""
+
     source: str
     video: str
-    """The output name prefix: DIR/videos/<video>.{rrd,mcap,tracks.csv}."""
+    """The output name prefix: DIR/videos/<video>.{rrd,mcap,tracks.csv,objects.csv}."""
     track_id: int
     cls: str
     height_m: float
     """The filtered height at the track's last confirmed frame."""
     height_std_m: float
     height_source: str
-    """Where the last height came from: 'network', 'geometry' or 'fused'."""
+    """Where the last height came from: 'network', 'geometry', 'box' or 'fused'."""
     first_time_s: float
     last_time_s: float
     frames_seen: int
     """Frames in which the track was confirmed."""
+    frames_measured: int
+    ground_x_m: float
+    ground_y_m: float
+    rules_fired: str
+    """Rule names separated by ';'."""
 
 
 @dataclass
@@ -53,24 +63,11 @@ class VideoRow:
     finished_at: str
 
 
-def read_track_rows(tracks_csv: Path, source: str, video: str) -> list[TrackRow]:
-    """Collapse a per-frame tracks CSV to one row per track."""
-    rows: dict[int, TrackRow] = {}
-    with open(tracks_csv, newline="", encoding="utf-8") as f:
-        for record in csv.DictReader(f):
-            track_id = int(record["track_id"])
-            time_s, height, std = float(record["time_s"]), float(record["height_m"]), float(record["height_std_m"])
-            row = rows.get(track_id)
-            if row is None:
-                rows[track_id] = TrackRow(source, video, track_id, record["class"], height, std,
-                                          record["height_source"], time_s, time_s, 1)
-                continue
-            row.cls, row.height_m, row.height_std_m = record["class"], height, std
-            row.height_source = record["height_source"]
-            row.first_time_s = min(row.first_time_s, time_s)
-            row.last_time_s = max(row.last_time_s, time_s)
-            row.frames_seen += 1
-    return sorted(rows.values(), key=lambda r: r.track_id)
+def read_track_rows(objects_csv: Path, source: str, video: str) -> list[TrackRow]:
+    return [TrackRow(source, video, row.track_id, row.cls, row.height_m, row.height_std_m, row.height_source,
+                     row.first_time_s, row.last_time_s, row.frames_seen, row.frames_measured, row.ground_x_m,
+                     row.ground_y_m, ";".join(row.rules_fired))
+            for row in read_objects_csv(objects_csv)]
 
 
 def build_tables(manifest: Manifest, out_dir: Path) -> tuple[list[TrackRow], list[VideoRow]]:
@@ -84,7 +81,7 @@ def build_tables(manifest: Manifest, out_dir: Path) -> tuple[list[TrackRow], lis
         if entry.status != DONE:
             continue
         for name in entry.outputs:
-            if name.endswith(".tracks.csv") and (out_dir / name).is_file():
+            if name.endswith(".objects.csv") and (out_dir / name).is_file():
                 tracks += read_track_rows(out_dir / name, source, entry.output_name)
     return tracks, videos
 
@@ -99,7 +96,8 @@ def _write_csv(path: Path, row_type, rows) -> None:
         writer = csv.writer(f)
         writer.writerow(_columns(row_type))
         for row in rows:
-            writer.writerow(asdict(row).values())
+            writer.writerow("" if isinstance(v, float) and not math.isfinite(v) else v
+                            for v in asdict(row).values())
     os.replace(tmp, path)
 
 

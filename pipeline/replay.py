@@ -1,4 +1,4 @@
-"""``heightpipe replay FILE.mcap [--save OUT.rrd]``: an MCAP recording in the rerun viewer.
+"""``heightpipe replay FILE.mcap [--save OUT.rrd | --web]``: an MCAP recording in the rerun viewer.
 
 rerun opens our MCAP files itself but draws neither the track boxes (foxglove
 ImageAnnotations) nor the per-track height plots (custom protobuf), and shows the height map
@@ -6,7 +6,8 @@ as a plain image. Replay reads the MCAP and logs each frame through the same
 ``RerunFrameLogger`` as ``heightpipe run``, so the result matches the live ``.rrd``.
 
 The file is read front to back with the linear reader, so an unfinished recording (killed
-writer, no summary) replays up to its last complete chunk, with a warning.
+writer, no summary) replays up to its last complete chunk, with a warning. ``--web`` serves
+rerun's web viewer as ``heightpipe run --rerun web`` does (``[web]`` in config.toml).
 """
 
 from __future__ import annotations
@@ -22,14 +23,18 @@ from core.config import Config
 from core.errors import HeightpipeError
 
 TOPICS = ("/tracks", "/camera/image", "/camera/calibration", "/camera/height", "/camera/ground",
-          "/camera/matches", "/capture/damage")
+          "/camera/matches", "/capture/damage", "/events")
 """What replay draws; /camera/annotations is redundant with /tracks (boxes are redrawn)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mcap", type=Path, metavar="FILE.mcap", help="recording written by `heightpipe run`")
-    parser.add_argument("--save", type=Path, metavar="OUT.rrd",
+    target = parser.add_mutually_exclusive_group()
+    target.add_argument("--save", type=Path, metavar="OUT.rrd",
                         help="write a .rrd file instead of opening the viewer (headless)")
+    target.add_argument("--web", action="store_true",
+                        help="serve rerun's web viewer as set in [web] (headless; loopback by default) "
+                             "and keep serving until Ctrl-C")
 
 
 def main(args: argparse.Namespace, config: Config) -> int:
@@ -38,14 +43,27 @@ def main(args: argparse.Namespace, config: Config) -> int:
         raise HeightpipeError(f"MCAP file not found: {path}")
     if args.save is not None and not args.save.parent.is_dir():
         raise HeightpipeError(f"output folder does not exist: {args.save.parent}")
-    result = replay_mcap(path, args.save)
-    target = args.save if args.save is not None else "the rerun viewer"
-    print(f"replayed {result.frames} frames from {path} to {target}", file=sys.stderr)
+    if not args.web:
+        result = replay_mcap(path, args.save, config.output.ground_overlay)
+        _report(path, result, args.save if args.save is not None else "the rerun viewer")
+        return 0
+
+    from pipeline.web_view import WebViewer
+
+    with WebViewer(config.web) as viewer:
+        result = replay_mcap(path, None, config.output.ground_overlay, web_url=viewer.grpc_url)
+        _report(path, result, viewer.page_url)
+        if config.web.keep_serving:
+            viewer.wait_for_ctrl_c()
+    return 0
+
+
+def _report(path: Path, result: ReplayResult, target: object) -> None:
+    print(f"replayed {result.frames} frames from {path} to {target}", file=sys.stderr, flush=True)
     if result.error:
         print(f"heightpipe: warning: {path} ends early ({result.error}); the recording was "
               f"probably not closed: replayed the {result.frames} complete frames "
               f"(`heightpipe recover {path}` rewrites it as a valid MCAP)", file=sys.stderr)
-    return 0
 
 
 @dataclass
@@ -65,12 +83,15 @@ class _TruncatedMcap(Exception):
     """Reading failed part-way: the file is cut off or corrupt from here on."""
 
 
-def replay_mcap(path: Path, save: Path | None) -> ReplayResult:
-    """Logs every frame of ``path`` to a new rerun recording: ``save`` (.rrd) or a spawned viewer."""
+def replay_mcap(path: Path, save: Path | None, ground_overlay: bool = False,
+                web_url: str | None = None) -> ReplayResult:
+    """Logs every frame of ``path`` to a new rerun recording: ``save`` (.rrd), the web viewer
+    server at ``web_url``, or a spawned viewer."""
     from stages.rerun_sink import (VIEWER_MEMORY_LIMIT, RerunFrameLogger, close_recording,
                                    has_display, heightpipe_blueprint, open_recording)
+    import rerun as rr
 
-    if save is None and not has_display():
+    if save is None and web_url is None and not has_display():
         raise HeightpipeError("no display for the rerun viewer (DISPLAY/WAYLAND_DISPLAY unset); "
                               "use --save OUT.rrd")
 
@@ -85,9 +106,11 @@ def replay_mcap(path: Path, save: Path | None) -> ReplayResult:
     rec = open_recording(path.stem)
     if save is not None:
         rec.save(save, default_blueprint=heightpipe_blueprint())
+    elif web_url is not None:
+        rec.set_sinks(rr.GrpcSink(web_url), default_blueprint=heightpipe_blueprint())
     else:
         rec.spawn(memory_limit=VIEWER_MEMORY_LIMIT, default_blueprint=heightpipe_blueprint())
-    logger = RerunFrameLogger(rec)
+    logger = RerunFrameLogger(rec, ground_overlay=ground_overlay)
     count, error = 0, ""
     try:
         frame = first
@@ -127,14 +150,17 @@ def _read_frames(path: Path) -> Iterator[_FrameMessages]:
                     channel = channels[record.channel_id]
                     if channel.topic not in TOPICS:
                         continue
-                    decode = decoders.decoder_for(channel.message_encoding, schemas.get(channel.schema_id))
+                    decode = _decoder(decoders, channel, schemas.get(channel.schema_id))
                     if decode is None:
                         continue
                     if current is None or record.log_time != current.log_time:
                         if current is not None:
                             yield current
                         current = _FrameMessages(record.log_time)
-                    current.by_topic[channel.topic] = decode(record.data)
+                    if channel.topic == "/events":  # several events may share a frame
+                        current.by_topic.setdefault("/events", []).append(decode(record.data))
+                    else:
+                        current.by_topic[channel.topic] = decode(record.data)
         except UnreadableTail as exc:
             if current is not None:  # its messages are all there that recovery would keep
                 yield current
@@ -143,6 +169,15 @@ def _read_frames(path: Path) -> Iterator[_FrameMessages]:
             raise _TruncatedMcap(f"{type(exc).__name__}: {exc}") from None
     if current is not None:
         yield current
+
+
+def _decoder(protobuf: Any, channel: Any, schema: Any) -> Any:
+    """Protobuf channels through mcap_protobuf; heightpipe's JSON /events to dicts."""
+    if channel.message_encoding == "json":
+        import json
+
+        return json.loads
+    return protobuf.decoder_for(channel.message_encoding, schema)
 
 
 def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time: int) -> None:
@@ -175,6 +210,7 @@ def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time:
         logger.log_tracks(tracks_from_record(record))
     if (damage := messages.get("/capture/damage")) is not None:
         logger.log_damage(damage.message)
+    logger.log_events(messages.get("/events", []))
     logger.end_frame()
 
 

@@ -25,7 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-frames", type=int, metavar="N",
                         help="stop after N processed frames (0, the default: all)")
     parser.add_argument("--stride", type=int, metavar="N", help="process every Nth frame (default 1)")
-    parser.add_argument("--rerun", choices=["spawn", "save", "serve", "off"], help="rerun output (default: save)")
+    parser.add_argument("--rerun", choices=["spawn", "save", "web", "serve", "off"],
+                        help="rerun output (default: save); web: serve rerun's web viewer as set in [web] "
+                             "(loopback, ports 9090/9876 by default) and keep serving after the run until Ctrl-C")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -81,8 +83,18 @@ def main(args: argparse.Namespace, config: Config) -> int:
 
     apply_flags(args, config)
     check_capture_limits(config)
-    summary = run_pipeline(args.source, config, default_prefix(args.source, args.out, config))
-    print(format_summary(summary), file=sys.stderr)
-    if summary.interrupted:
-        return 130
-    return 0
+    prefix = default_prefix(args.source, args.out, config)
+    if config.output.rerun != "web":
+        summary = run_pipeline(args.source, config, prefix)
+        print(format_summary(summary), file=sys.stderr)
+        return 130 if summary.interrupted else 0
+
+    from pipeline.web_view import WebViewer
+
+    with WebViewer(config.web) as viewer:
+        print(f"heightpipe: watch the run at {viewer.page_url}", file=sys.stderr, flush=True)
+        summary = run_pipeline(args.source, config, prefix)
+        print(format_summary(summary), file=sys.stderr, flush=True)
+        if config.web.keep_serving and not summary.interrupted:
+            viewer.wait_for_ctrl_c()
+    return 130 if summary.interrupted else 0

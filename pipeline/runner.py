@@ -23,6 +23,7 @@ from core.packets import CameraInfo
 from core.stage import Sink
 from pipeline.stage_chain import build_stage_chain, close_all
 from stages.capture import CaptureStats, FrameSource, open_source
+from stages.objects_table import ObjectTable
 
 
 @dataclass
@@ -30,9 +31,11 @@ class RunOutputs:
     rrd: Path | None
     mcap: Path | None
     csv: Path | None
+    objects: Path | None = None
+    events: Path | None = None
 
     def existing(self) -> list[Path]:
-        return [p for p in (self.rrd, self.mcap, self.csv) if p is not None]
+        return [p for p in (self.rrd, self.mcap, self.csv, self.objects, self.events) if p is not None]
 
 
 @dataclass
@@ -40,10 +43,14 @@ class RunSummary:
     source: str
     frames: int = 0
     capture: CaptureStats = field(default_factory=CaptureStats)
-    confirmed_tracks: dict[int, tuple[str, float, float]] = field(default_factory=dict)
-    """track id -> (class, last height m, last std m) of every track ever confirmed."""
+    objects: ObjectTable = field(default_factory=ObjectTable)
+    """One row per track ever confirmed: what PREFIX.objects.csv holds."""
     stage_ms: dict[str, float] = field(default_factory=lambda: defaultdict(float))
     wall_s: float = 0.0
+    events: int = 0
+    """Height-rule firings (each one a line of PREFIX.events.jsonl)."""
+    webhook: str = ""
+    """How the webhook fared ("" = none configured)."""
     interrupted: str | None = None
     camera_source: str = "none"
     outputs: RunOutputs | None = None
@@ -112,6 +119,8 @@ def output_paths(prefix: Path, config: Config) -> RunOutputs:
         rrd=prefix.with_name(prefix.name + ".rrd") if config.output.rerun != "off" else None,
         mcap=prefix.with_name(prefix.name + ".mcap") if config.output.mcap else None,
         csv=prefix.with_name(prefix.name + ".tracks.csv") if config.output.csv else None,
+        objects=prefix.with_name(prefix.name + ".objects.csv") if config.output.objects else None,
+        events=prefix.with_name(prefix.name + ".events.jsonl") if config.rules else None,
     )
 
 
@@ -121,7 +130,8 @@ def build_camera(config: Config, width: int, height: int) -> CameraInfo:
     return camera_for_run(config.camera, width, height)
 
 
-def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> list[tuple[str, Sink]]:
+def build_sinks(outputs: RunOutputs, config: Config, recording_name: str,
+                objects: ObjectTable | None = None) -> list[tuple[str, Sink]]:
     """The sinks of this run; if one cannot be opened, those already open are closed first."""
     from stages.sink_common import FrameEncoder
 
@@ -129,10 +139,11 @@ def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> lis
     sinks: list[tuple[str, Sink]] = []
     try:
         if outputs.rrd is not None:
-            from stages.rerun_sink import RerunSink
+            from stages.rerun_sink import RerunSink, web_grpc_url
 
+            web_url = web_grpc_url(config.web.bind, config.web.grpc_port) if config.output.rerun == "web" else None
             sinks.append(("rerun", RerunSink(outputs.rrd, config.output.rerun, config.output, recording_name,
-                                             encoder=encoder)))
+                                             encoder=encoder, web_url=web_url)))
         if outputs.mcap is not None:
             from stages.mcap_sink import McapSink
 
@@ -142,6 +153,14 @@ def build_sinks(outputs: RunOutputs, config: Config, recording_name: str) -> lis
             from stages.csv_sink import TrackCsvSink
 
             sinks.append(("csv", TrackCsvSink(outputs.csv)))
+        if outputs.objects is not None:
+            from stages.objects_table import ObjectsSink
+
+            sinks.append(("objects", ObjectsSink(outputs.objects, objects or ObjectTable())))
+        if outputs.events is not None:
+            from stages.events_sink import EventsSink
+
+            sinks.append(("events", EventsSink(outputs.events, config.events, recording_name)))
     except BaseException:
         close_all([sink for _, sink in sinks])
         raise
@@ -187,7 +206,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         chain = build_stage_chain(config, camera)
         chain.prime(source.background_sample(config.objects.background_prime_frames,
                                              config.objects.background_prime_s))
-        sinks = build_sinks(outputs, config, prefix.name)
+        sinks = build_sinks(outputs, config, prefix.name, summary.objects)
     except BaseException:
         source.close()
         raise
@@ -198,6 +217,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         with _StopSignals().installed() as stop_signals:
             for packet in chain.run(source.frames(), camera):
                 with stop_signals.writing():
+                    summary.objects.add(packet)
                     for name, sink in sinks:
                         t0 = time.perf_counter()
                         sink.write(packet)
@@ -205,9 +225,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
                     summary.frames += 1
                     for name, ms in packet.timings_ms.items():
                         summary.stage_ms[name] += ms
-                    for track in packet.tracks:
-                        if track.confirmed:
-                            summary.confirmed_tracks[track.track_id] = (track.cls, track.height_m, track.height_std_m)
+                    summary.events += len(packet.events)
                 progress.update(1)
                 progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
                 if on_frame is not None:
@@ -220,5 +238,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         summary.wall_s = time.perf_counter() - start
         progress.close()
         close_all([stage for _, stage in chain.stages + sinks] + [source])
+        webhook = next((sink.webhook_stats for name, sink in sinks if name == "events"), None)
+        summary.webhook = webhook.summary() if webhook is not None else ""
     return summary
 

@@ -105,6 +105,10 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
 
         stages.append(("geometry", GeometryMeasurer(config.camera)))
     stages.append(("tracking", TrackingStage(config.tracking)))
+    if config.rules:
+        from stages.height_rules import HeightRules
+
+        stages.append(("rules", HeightRules(config.rules, is_calibrated(camera))))
     return StageChain(stages)
 
 

@@ -7,14 +7,8 @@ import statistics
 from collections import defaultdict
 
 from pipeline.runner import RunSummary
-
-CAMERA_SOURCES = {
-    "calibration": "calibrated (full pose: a calibration file, or camera height and pitch)",
-    "camera-height": "camera height given, no full calibration",
-    "self": "self-calibrated from walking people: heights carry its uncertainty",
-    "none": "UNCALIBRATED: no camera height or calibration given, an assumed height is used, "
-            "heights are indicative only",
-}
+from stages.objects_table import ObjectRow
+from stages.sink_common import CAMERA_STATES
 
 
 def _size(path) -> str:
@@ -34,21 +28,28 @@ def _class_summary(cls: str, heights: list[float]) -> str:
     return text
 
 
+def tracks_line(rows: list[ObjectRow]) -> str:
+    """'13 confirmed: person 13 (median 1.73 m)', from the rows of PREFIX.objects.csv."""
+    by_class: dict[str, list[float]] = defaultdict(list)
+    for row in rows:
+        by_class[row.cls].append(row.height_m)
+    if not by_class:
+        return "none confirmed"
+    return (f"{len(rows)} confirmed: "
+            + ", ".join(_class_summary(cls, h) for cls, h in sorted(by_class.items())))
+
+
 def format_summary(summary: RunSummary) -> str:
     lines = [f"heightpipe: processed {summary.frames} frames of {summary.source} in "
              f"{summary.wall_s:.1f} s ({summary.fps:.1f} frames/s)"]
     if summary.interrupted:
         lines.append(f"  stopped by {summary.interrupted}: the outputs hold the {summary.frames} frames processed")
     lines.append(f"  capture: {summary.capture.summary()}")
-    lines.append(f"  camera: {CAMERA_SOURCES.get(summary.camera_source, summary.camera_source)}")
-    by_class: dict[str, list[float]] = defaultdict(list)
-    for cls, height, _std in summary.confirmed_tracks.values():
-        by_class[cls].append(height)
-    if by_class:
-        lines.append(f"  tracks: {len(summary.confirmed_tracks)} confirmed: "
-                     + ", ".join(_class_summary(cls, h) for cls, h in sorted(by_class.items())))
-    else:
-        lines.append("  tracks: none confirmed")
+    lines.append(f"  camera: {CAMERA_STATES.get(summary.camera_source, summary.camera_source)}")
+    lines.append(f"  tracks: {tracks_line(summary.objects.sorted_rows())}")
+    if summary.events or summary.webhook:
+        lines.append(f"  events: {summary.events} height-rule firings"
+                     + (f"; webhook: {summary.webhook}" if summary.webhook else ""))
     if summary.frames:
         per_frame = ", ".join(f"{name} {ms / summary.frames:.1f}" for name, ms in summary.stage_ms.items())
         lines.append(f"  ms per frame: {per_frame}")

@@ -12,6 +12,7 @@ epoch ns, + the frame's source time):
     /camera/annotations   foxglove.ImageAnnotations: confirmed tracks' boxes and labels
     /camera/matches       foxglove.ImageAnnotations: matched features as prev->curr segments
     /capture/damage       foxglove.Log (warning), only on frames decoded with errors: why
+    /events               JSON (schema heightpipe.RuleEvent): height-rule firings, at their frame
 
 Written with foxglove-sdk (Rust; about twice as fast as the pure-Python mcap writer). Crash
 safety: zstd chunks of at most ``mcap_chunk_size`` bytes, and the open chunk is closed at
@@ -21,6 +22,7 @@ least every ``flush_interval_s`` of source time, so after a kill -9 a linear rea
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -37,9 +39,10 @@ from foxglove.messages import (CameraCalibration, Color, CompressedImage, ImageA
 from core.config import OutputConfig
 from core.errors import HeightpipeError
 from core.packets import CameraInfo, FeatureMatches, FramePacket, Track
-from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC,
-                                MATCH_KIND_KEY, OBJECT_MATCH_RGB, FrameEncoder,
-                                check_output_config, confirmed, damage_text, track_label)
+from stages.height_rules import EVENT_JSON_SCHEMA
+from stages.sink_common import (BACKGROUND_MATCH_RGB, DAMAGE_TOPIC, MATCH_KIND_KEY, OBJECT_MATCH_RGB,
+                                FrameEncoder, check_output_config, confirmed, damage_text, quality_rgb,
+                                track_label)
 from stages.track_record import SCHEMA_NAME, build_track_record_type, encode_track_array
 
 FRAME_ID = "camera"
@@ -94,6 +97,10 @@ class McapSink:
         self._annotations = ImageAnnotationsChannel("/camera/annotations", context=context)
         self._matches = ImageAnnotationsChannel("/camera/matches", context=context)
         self._damage = LogChannel(DAMAGE_TOPIC, context=context)
+        self._events = foxglove.Channel(
+            "/events", message_encoding="json", context=context,
+            schema=foxglove.Schema(name=EVENT_JSON_SCHEMA["title"], encoding="jsonschema",
+                                   data=json.dumps(EVENT_JSON_SCHEMA).encode()))
         self._last_log_time = 0
         self._last_flush_s: float | None = None
         self._closed = False
@@ -129,6 +136,8 @@ class McapSink:
         if frame.damage:
             self._damage.log(Log(timestamp=stamp, level=LogLevel.Warning, name="capture",
                                  message=damage_text(frame)), log_time=log_time)
+        for event in packet.events:
+            self._events.log(event.to_dict(), log_time=log_time)
         self._flush_if_due(frame.time_s)
 
     def _flush_if_due(self, time_s: float) -> None:
@@ -168,7 +177,7 @@ def _track_annotations(tracks: list[Track], stamp: Timestamp) -> ImageAnnotation
     boxes, labels = [], []
     for track in tracks:
         x, y, w, h = (float(v) for v in track.box)
-        rgb = CLASS_COLORS_RGB.get(track.cls, CLASS_COLORS_RGB["other"])
+        rgb = quality_rgb(track)
         boxes.append(PointsAnnotation(
             timestamp=stamp, type=PointsAnnotationType.LineLoop, thickness=2.0,
             outline_color=_color(rgb),

@@ -6,12 +6,16 @@ same recording. Entities:
 
     /camera             Pinhole (when the intrinsics are known)
     /camera/image       the frame, JPEG
-    /camera/ground      ground mask overlay (SegmentationImage)
+    /camera/ground      ground mask overlay (SegmentationImage; only with output.ground_overlay)
     /camera/matches     matched features, arrows from the previous to this frame
-    /camera/tracks      confirmed tracks: boxes, labels "#id 1.72±0.04 m", class colours
+    /camera/tracks      confirmed tracks: boxes labelled "1.72 m ±4 cm" (+ "#12 person, geometry"
+                        when the box has room), coloured by quality: settled / settling / no height
+    /camera/events      a magenta frame around each object that fired a height rule, for a few seconds
     /height             height map in millimetres, shown colour-mapped in metres
-    /tracks/<id>/height one height time series per confirmed track
+    /tracks/<id>/height one height time series per confirmed track; cleared while it coasts
     /capture/damage     a warning TextLog on each frame decoded with errors
+    /events             height-rule firings as a text log
+    /status             the camera's calibration state (what the heights can be trusted for)
 
 Timelines: ``frame`` (source frame index) and ``time`` (source time, a duration).
 """
@@ -31,18 +35,23 @@ import rerun.blueprint as rrb
 from core.config import OutputConfig
 from core.errors import ConfigError, HeightpipeError
 from core.packets import OBJECT_CLASSES, FramePacket, Track
-from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC,
+from stages.sink_common import (BACKGROUND_MATCH_RGB, CAMERA_STATES, CLASS_COLORS_RGB, DAMAGE_TOPIC,
                                 OBJECT_MATCH_RGB, FrameEncoder, check_output_config, class_id,
-                                confirmed, damage_text, track_label)
+                                confirmed, damage_text, height_text, quality_rgb, track_label)
 
 APPLICATION_ID = "heightpipe"
 VIEWER_MEMORY_LIMIT = "2GB"
 """Spawned viewer's limit: it drops the oldest data beyond this (its default is 75% of RAM)."""
-RERUN_MODES = ("save", "spawn", "serve")
+RERUN_MODES = ("save", "spawn", "web", "serve")
 WEB_VIEWER_PORT = 9090
 """rerun's default web viewer port (serve mode)."""
 FLUSH_TIMEOUT_S = 30.0
 """close() waits at most this long for a viewer to take the last data."""
+EVENT_MARKER_S = 3.0
+"""An event's marker stays on the frame this long (source time)."""
+EVENT_RGB = (255, 40, 200)
+EVENT_MARKER_PAD_PX = 6.0
+"""The marker is a thick magenta frame this far around the object's box."""
 
 
 def has_display() -> bool:
@@ -51,14 +60,24 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+def web_grpc_url(bind: str, grpc_port: int) -> str:
+    """Where the run streams to a web viewer server on this machine (see pipeline/web_view.py)."""
+    host = "127.0.0.1" if bind in ("0.0.0.0", "::", "") else bind
+    return f"rerun+http://{host}:{grpc_port}/proxy"
+
+
 def heightpipe_blueprint() -> rrb.Blueprint:
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.Spatial2DView(name="Frame: tracks, ground, matches", origin="/camera"),
+                rrb.Spatial2DView(name="Frame: tracks, events, matches", origin="/camera"),
                 rrb.Spatial2DView(name="Height map (m)", origin="/height"),
                 row_shares=[3, 2]),
-            rrb.TimeSeriesView(name="Track height (m)", origin="/tracks"),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="Track height (m)", origin="/tracks"),
+                rrb.TextLogView(name="Height-rule events", origin="/events"),
+                rrb.TextDocumentView(name="Camera", origin="/status"),
+                row_shares=[5, 2, 1]),
             column_shares=[3, 2]),
         collapse_panels=True)
 
@@ -72,14 +91,19 @@ class RerunFrameLogger:
 
     _PER_FRAME = ("/camera/ground", "/camera/matches", "/height")
 
-    def __init__(self, rec: rr.RecordingStream):
+    def __init__(self, rec: rr.RecordingStream, ground_overlay: bool = True):
         self.rec = rec
+        self.ground_overlay = ground_overlay
         self._logged_now: set[str] = set()
         self._logged_before: set[str] = set()
         self._named_series: set[int] = set()
+        self._coasting: set[int] = set()
         self._camera_key: tuple | None = None
+        self._camera_state: str | None = None
+        self._marker_until_s: float | None = None
+        self._time_s = 0.0
         rec.log("/camera/ground", rr.AnnotationContext(
-            [(0, "other", (0, 0, 0, 0)), (1, "ground", (0, 230, 90, 255))]), static=True)
+            [(0, "other", (0, 0, 0, 0)), (1, "ground", (0, 200, 255, 255))]), static=True)
         rec.log("/camera/tracks", rr.AnnotationContext(
             [(i, name, CLASS_COLORS_RGB[name]) for i, name in enumerate(OBJECT_CLASSES)]),
             static=True)
@@ -87,7 +111,11 @@ class RerunFrameLogger:
     def begin_frame(self, frame_index: int, time_s: float) -> None:
         self.rec.set_time("frame", sequence=int(frame_index))
         self.rec.set_time("time", duration=float(time_s))
+        self._time_s = float(time_s)
         self._logged_now = set()
+        if self._marker_until_s is not None and self._time_s >= self._marker_until_s:
+            self.rec.log("/camera/events", rr.Clear(recursive=False))
+            self._marker_until_s = None
 
     def end_frame(self) -> None:
         for path in self._logged_before - self._logged_now:
@@ -110,10 +138,19 @@ class RerunFrameLogger:
                                             resolution=[width, height]))
             self._camera_key = key
 
+    def log_camera_state(self, source: str) -> None:
+        """Writes what the camera's calibration state means for the heights, when it changes."""
+        if source != self._camera_state:
+            state = CAMERA_STATES.get(source, source)
+            self._log("/status", rr.TextDocument(f"**Camera:** {state}", media_type="text/markdown"))
+            self._camera_state = source
+
     def log_ground_mask(self, mask: np.ndarray) -> None:
-        """``mask``: H x W, nonzero = ground, in frame pixels."""
+        """``mask``: H x W, nonzero = ground, in frame pixels (only with ``ground_overlay``)."""
+        if not self.ground_overlay:
+            return
         labels = mask.view(np.uint8) if mask.dtype == np.bool_ else (mask != 0).view(np.uint8)
-        self._log("/camera/ground", rr.SegmentationImage(labels, opacity=0.35))
+        self._log("/camera/ground", rr.SegmentationImage(labels, opacity=0.2))
 
     def log_height_mm(self, height_mm: np.ndarray) -> None:
         """``height_mm``: uint16 millimetres above the ground (possibly downscaled)."""
@@ -130,19 +167,47 @@ class RerunFrameLogger:
         self.rec.log(DAMAGE_TOPIC, rr.TextLog(text, level=rr.TextLogLevel.WARN))
 
     def log_tracks(self, tracks: list[Track]) -> None:
-        """Draws the confirmed ones; always logs (an empty list clears last frame's boxes)."""
+        """Draws the confirmed ones; always logs (an empty list clears last frame's boxes).
+
+        A coasting track (no detection this frame) keeps its box but its height series is
+        cleared, so the plot shows a gap, not a flat line of predictions.
+        """
         shown = confirmed(tracks)
         boxes = np.array([t.box for t in shown], dtype=np.float32).reshape(-1, 4)
         self.rec.log("/camera/tracks", rr.Boxes2D(
             array=boxes, array_format=rr.Box2DFormat.XYWH, labels=[track_label(t) for t in shown],
+            colors=np.array([quality_rgb(t) for t in shown], dtype=np.uint8).reshape(-1, 3),
             class_ids=[class_id(t.cls) for t in shown], show_labels=True))
         for track in shown:
             path = f"/tracks/{track.track_id}/height"
             if track.track_id not in self._named_series:
-                self.rec.log(path, rr.SeriesLines(names=f"#{track.track_id} ({track.cls})"),
+                self.rec.log(path, rr.SeriesLines(names=f"#{track.track_id} {track.cls}"),
                              static=True)
                 self._named_series.add(track.track_id)
+            if not track.updated or not np.isfinite(track.height_m):
+                if track.track_id not in self._coasting:
+                    self.rec.log(path, rr.Clear(recursive=False))
+                    self._coasting.add(track.track_id)
+                continue
+            self._coasting.discard(track.track_id)
             self.rec.log(path, rr.Scalars(track.height_m))
+
+    def log_events(self, events: list[dict]) -> None:
+        """Height-rule firings (``RuleEvent.to_dict()``): a text log line and a marker each."""
+        if not events:
+            return
+        for event in events:
+            text = (f"{event['rule']}: #{event['track_id']} {event['class']} "
+                    f"{height_text(event['height_m'], event['height_std_m'])} ({event['height_source']})")
+            self.rec.log("/events", rr.TextLog(text, level=rr.TextLogLevel.WARN))
+        pad = EVENT_MARKER_PAD_PX
+        frames = [(e["box"][0] - pad, e["box"][1] - pad, e["box"][2] + 2 * pad, e["box"][3] + 2 * pad)
+                  for e in events]
+        self.rec.log("/camera/events", rr.Boxes2D(
+            array=np.array(frames, dtype=np.float32), array_format=rr.Box2DFormat.XYWH,
+            colors=[EVENT_RGB] * len(events), radii=2.0, labels=[e["rule"] for e in events],
+            show_labels=True))
+        self._marker_until_s = self._time_s + EVENT_MARKER_S
 
 
 def open_recording(recording_name: str) -> rr.RecordingStream:
@@ -161,10 +226,13 @@ def close_recording(rec: rr.RecordingStream) -> None:
 
 
 class RerunSink:
-    """Writes PREFIX.rrd; in 'spawn' and 'serve' modes also streams to a viewer."""
+    """Writes PREFIX.rrd; in 'spawn', 'web' and 'serve' modes also streams to a viewer.
+
+    'web' streams to the web viewer server at ``web_url`` (``pipeline.web_view`` starts it).
+    """
 
     def __init__(self, path: Path, mode: str, config: OutputConfig, recording_name: str,
-                 encoder: FrameEncoder | None = None):
+                 encoder: FrameEncoder | None = None, web_url: str | None = None):
         if mode not in RERUN_MODES:
             raise ConfigError(f"output.rerun must be one of {', '.join(RERUN_MODES)} or off, "
                               f"got {mode!r}")
@@ -182,6 +250,12 @@ class RerunSink:
             elif mode == "spawn":
                 self.rec.spawn(connect=False, memory_limit=VIEWER_MEMORY_LIMIT)
                 self.rec.set_sinks(rr.GrpcSink(), rr.FileSink(self.path), default_blueprint=blueprint)
+            elif mode == "web":
+                if web_url is None:
+                    raise ConfigError("output.rerun=web needs the web viewer server (started by "
+                                      "`heightpipe run`); use 'save' or 'serve' here")
+                self.rec.set_sinks(rr.GrpcSink(web_url), rr.FileSink(self.path),
+                                   default_blueprint=blueprint)
             else:
                 server = rr.GrpcServerSink()  # all interfaces, port 9876: viewable from elsewhere
                 self.rec.set_sinks(server, rr.FileSink(self.path), default_blueprint=blueprint)
@@ -192,7 +266,7 @@ class RerunSink:
                       file=sys.stderr)
         except (OSError, RuntimeError, ValueError) as exc:
             raise HeightpipeError(f"cannot start rerun output ({mode}): {exc}") from None
-        self.logger = RerunFrameLogger(self.rec)
+        self.logger = RerunFrameLogger(self.rec, ground_overlay=config.ground_overlay)
         self.flush_interval_s = config.flush_interval_s
         self._last_flush_s: float | None = None
         self._closed = False
@@ -202,6 +276,7 @@ class RerunSink:
         log.begin_frame(packet.frame.index, packet.frame.time_s)
         log.log_image(self.encoder.jpeg(packet))
         camera = packet.camera
+        log.log_camera_state(camera.source)
         if camera.K is not None:
             log.log_camera(camera.K, camera.width, camera.height)
         if packet.ground_mask is not None:
@@ -214,6 +289,7 @@ class RerunSink:
         log.log_tracks(packet.tracks)
         if packet.frame.damage:
             log.log_damage(damage_text(packet.frame))
+        log.log_events([event.to_dict() for event in packet.events])
         log.end_frame()
         self._flush_if_due(packet.frame.time_s)
 

@@ -94,8 +94,50 @@ def confirmed(tracks: list[Track]) -> list[Track]:
     return [track for track in tracks if track.confirmed]
 
 
+SETTLED_STD_M = 0.10
+"""A track whose height std is at most this is 'settled' (drawn green); above it 'settling'."""
+QUALITY_RGB = {"settled": (60, 220, 90), "settling": (255, 190, 40), "no height": (170, 170, 170)}
+"""Box colour by measurement quality, the same in rerun and Foxglove."""
+LABEL_ROOM_PX = (40, 48)
+"""A box at least this wide and tall (pixels) has room for the label's second line."""
+CAMERA_STATES = {
+    "calibration": "calibrated (full pose: a calibration file, or camera height and pitch)",
+    "camera-height": "camera height given, no full calibration",
+    "self": "self-calibrated from walking people: heights carry its uncertainty",
+    "none": "UNCALIBRATED: no camera height or calibration given, an assumed height is used, "
+            "heights are indicative only",
+}
+"""What each ``CameraInfo.source`` means for the heights, in the summary and the view."""
+
+
+def height_quality(track: Track) -> str:
+    """'settled', 'settling' or 'no height' (its top never inside the frame)."""
+    if not np.isfinite(track.height_m):
+        return "no height"
+    return "settled" if track.height_std_m <= SETTLED_STD_M else "settling"
+
+
+def height_text(height_m: float, std_m: float) -> str:
+    """'1.72 m ±4 cm'; 'no height' for NaN; the ± part left out when the std is unknown."""
+    if not np.isfinite(height_m):
+        return "no height"
+    if not np.isfinite(std_m):
+        return f"{height_m:.2f} m"
+    spread = f"{std_m * 100:.0f} cm" if std_m < 0.995 else f"{std_m:.1f} m"
+    return f"{height_m:.2f} m \u00b1{spread}"
+
+
 def track_label(track: Track) -> str:
-    return f"#{track.track_id} {track.height_m:.2f}\u00b1{track.height_std_m:.2f} m"
+    """'1.72 m ±4 cm', with '#12 person, geometry' on a second line when the box has room."""
+    text = height_text(track.height_m, track.height_std_m)
+    _x, _y, width, height = track.box
+    if width >= LABEL_ROOM_PX[0] and height >= LABEL_ROOM_PX[1]:
+        text += f"\n#{track.track_id} {track.cls}, {track.height_source}"
+    return text
+
+
+def quality_rgb(track: Track) -> tuple[int, int, int]:
+    return QUALITY_RGB[height_quality(track)]
 
 
 def class_id(cls: str) -> int:

@@ -11,8 +11,26 @@ def test_config_toml_documents_exactly_the_defaults():
     table = tomllib.loads(DEFAULT_CONFIG_PATH.read_text())
     defaults = Config()
     for section in dataclasses.fields(Config):
+        if section.name == "rules":  # [[rules]]: none by default (config.toml shows one commented out)
+            assert "rules" not in table and defaults.rules == []
+            continue
         values = dataclasses.asdict(getattr(defaults, section.name))
         assert table.get(section.name) == values, f"[{section.name}] in config.toml differs from the dataclass"
+
+
+def test_rules_are_an_array_of_tables_with_class_spelled_class(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text('[[rules]]\nname = "tall"\nclass = "vehicle"\nmin_height_m = 3\n'
+                    'zone = [[0, 0], [10, 0], [10, 10]]\n\n[[rules]]\nname = "any"\n')
+    rules = load_config(path).rules
+    assert [(r.name, r.cls, r.min_height_m) for r in rules] == [("tall", "vehicle", 3.0), ("any", "", 0.0)]
+    assert rules[0].zone == [[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]
+    path.write_text('[[rules]]\nname = "x"\nmin_hieght_m = 3\n')
+    with pytest.raises(ConfigError, match="unknown key 'min_hieght_m' in \\[\\[rules\\]\\] #1"):
+        load_config(path)
+    path.write_text('[rules]\nname = "x"\n')
+    with pytest.raises(ConfigError, match="array of tables"):
+        load_config(path)
 
 
 def test_unknown_key_is_rejected(tmp_path):

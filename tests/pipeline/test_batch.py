@@ -83,7 +83,8 @@ def test_local_batch_processes_every_clip_and_reports_the_corrupt_one(local_batc
         assert entry["frames"] == CLIP_FRAMES[["cam_a", "cam_b"].index(Path(source).parent.name) * 3
                                               + int(Path(source).stem[-1])]
         assert entry["duration_s"] == pytest.approx(entry["frames"] / 15.0)  # clips are 15 fps
-        assert sorted(Path(name).name.split(".", 1)[1] for name in entry["outputs"]) == ["mcap", "rrd", "tracks.csv"]
+        assert sorted(Path(name).name.split(".", 1)[1] for name in entry["outputs"]) == ["mcap", "objects.csv", "rrd",
+                                                                                            "tracks.csv"]
         assert all((out / name).stat().st_size > 0 for name in entry["outputs"])
     assert not list((out / ".partial").iterdir())
 
@@ -98,8 +99,19 @@ def test_each_video_gets_exactly_what_heightpipe_run_writes(local_batch, archive
     config.height.model, config.height.threads, config.output.progress = str(model), 1, False
     run_pipeline(str(source), config, tmp_path / "direct")
     entry = manifest(out)[str(source)]
-    batch_csv = out / "videos" / f"{entry['output_name']}.tracks.csv"
-    assert batch_csv.read_bytes() == (tmp_path / "direct.tracks.csv").read_bytes()
+    for suffix in (".tracks.csv", ".objects.csv"):
+        batch_csv = out / "videos" / f"{entry['output_name']}{suffix}"
+        assert batch_csv.read_bytes() == (tmp_path / f"direct{suffix}").read_bytes()
+
+
+def _values(row: dict) -> dict:
+    """A table row's values, numbers as numbers (the archive and objects.csv format them apart)."""
+    def value(text: str):
+        try:
+            return float(text)
+        except ValueError:
+            return text
+    return {k: value(v) for k, v in row.items() if k not in ("source", "video")}
 
 
 def test_archive_tables_hold_every_track_and_every_video(local_batch):
@@ -108,17 +120,21 @@ def test_archive_tables_hold_every_track_and_every_video(local_batch):
     assert sorted(v["status"] for v in videos) == ["done"] * 6 + ["failed"]
     tracks = read_csv(out / "tracks.csv")
     assert list(tracks[0]) == ["source", "video", "track_id", "class", "height_m", "height_std_m",
-                               "height_source", "first_time_s", "last_time_s", "frames_seen"]
+                               "height_source", "first_time_s", "last_time_s", "frames_seen", "frames_measured",
+                               "ground_x_m", "ground_y_m", "rules_fired"]
     for entry in (e for e in manifest(out).values() if e["status"] == "done"):
         per_frame = read_csv(out / "videos" / f"{entry['output_name']}.tracks.csv")
         mine = [t for t in tracks if t["video"] == entry["output_name"]]
+        objects = read_csv(out / "videos" / f"{entry['output_name']}.objects.csv")
+        assert [_values(t) for t in mine] == [_values(o) for o in objects], \
+            "the archive table is the videos' objects.csv rows"
         assert {int(t["track_id"]) for t in mine} == {int(r["track_id"]) for r in per_frame}
         assert len(mine) >= 1, "every clip has a moving box"
         for track in mine:
             rows = [r for r in per_frame if r["track_id"] == track["track_id"]]
             assert int(track["frames_seen"]) == len(rows)
             # NaN where no frame gave a height (e.g. an object only ever seen cut by the frame's edge).
-            assert np.array_equal(float(track["height_m"]), float(rows[-1]["height_m"]), equal_nan=True)
+            assert np.array_equal(float(track["height_m"] or "nan"), float(rows[-1]["height_m"]), equal_nan=True)
             assert track["height_source"] == rows[-1]["height_source"]
             assert float(track["first_time_s"]) == min(float(r["time_s"]) for r in rows)
             assert float(track["last_time_s"]) == max(float(r["time_s"]) for r in rows)

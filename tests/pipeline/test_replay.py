@@ -11,6 +11,7 @@ from rerun.chunk import RrdReader
 from pipeline import cli
 from core.config import OutputConfig
 from core.packets import FramePacket
+from stages.height_rules import RuleEvent
 from stages.mcap_sink import McapSink
 from stages.rerun_sink import RerunSink
 from stages.sink_common import FrameEncoder
@@ -18,20 +19,24 @@ from stages.sink_common import FrameEncoder
 from media import make_sink_packet, rrd_rows, write_unfinished_recording
 
 
-
 def make_packet(index: int) -> FramePacket:
-    """Frame 6 has no height map or matches (it keeps its ground mask)."""
-    return make_sink_packet(index, with_maps=index != 6)
+    """Frame 6 has no height map or matches (it keeps its ground mask); track 1 fires a rule at 8."""
+    packet = make_sink_packet(index, with_maps=index != 6)
+    if index == 8:
+        packet.events.append(RuleEvent("tall", 1, "person", 8, 0.8, 1.72, 0.04, "network",
+                                       (20.0, 10.0, 10.0, 20.0), None))
+    return packet
 
 
 def comparable(rows: dict[str, list[tuple[int, dict]]]) -> dict[str, list]:
     """What must match between live and replayed recordings (arrow order may differ)."""
     summary = {}
     for entity, items in rows.items():
-        if entity.startswith("/__"):
+        if entity.startswith("/__") or entity == "/status":  # the camera state is not in the MCAP
             continue
         summary[entity] = [
             (frame, sorted(components), sorted(map(str, row.get("Boxes2D:labels") or [])),
+             row.get("TextLog:text"), row.get("Points2D:positions"),
              row.get("Scalars:scalars"), sorted(map(tuple, row.get("Arrows2D:origins") or [])),
              row.get("DepthImage:buffer"), row.get("SegmentationImage:buffer"),
              row.get("Pinhole:image_from_camera"))
@@ -41,7 +46,7 @@ def comparable(rows: dict[str, list[tuple[int, dict]]]) -> dict[str, list]:
 
 def test_replay_draws_what_the_live_sink_draws(tmp_path, capsys):
     indices = [0, 2, 4, 6, 8, 10]
-    config = OutputConfig()
+    config = OutputConfig(ground_overlay=True)
     encoder = FrameEncoder.from_config(config)
     live = RerunSink(tmp_path / "run.rrd", "save", config, "run", encoder=encoder)
     recording = McapSink(tmp_path / "run.mcap", config, encoder=encoder)
@@ -53,7 +58,8 @@ def test_replay_draws_what_the_live_sink_draws(tmp_path, capsys):
     recording.close()
 
     replayed = tmp_path / "replayed.rrd"
-    assert cli.main(["replay", str(tmp_path / "run.mcap"), "--save", str(replayed)]) == 0
+    assert cli.main(["replay", str(tmp_path / "run.mcap"), "--save", str(replayed),
+                     "--set", "output.ground_overlay=true"]) == 0
     assert "replayed 6 frames" in capsys.readouterr().err
     verify = subprocess.run([shutil.which("rerun") or "rerun", "rrd", "verify", str(replayed)],
                             capture_output=True, text=True, timeout=60)
@@ -66,7 +72,9 @@ def test_replay_draws_what_the_live_sink_draws(tmp_path, capsys):
     assert [frame for frame, _ in replay_rows["/camera/image"]] == indices
     assert [frame for frame, _ in replay_rows["/tracks/1/height"]] == [4, 6, 8, 10]
     labels = dict(replay_rows["/camera/tracks"])[8]["Boxes2D:labels"]
-    assert sorted(labels) == ["#1 1.72\u00b10.04 m", "#2 1.20\u00b10.30 m"]
+    assert sorted(labels) == ["1.20 m \u00b130 cm", "1.72 m \u00b14 cm"]
+    assert [frame for frame, _ in replay_rows["/events"]] == [8]
+    assert "/camera/ground" in replay_rows
     live_jpeg = dict(live_rows["/camera/image"])[4]["EncodedImage:blob"]
     assert dict(replay_rows["/camera/image"])[4]["EncodedImage:blob"] == live_jpeg
 
@@ -120,3 +128,25 @@ def test_damaged_frames_are_marked_in_mcap_live_rrd_and_replay(tmp_path, capsys)
     for rrd in ("run.rrd", "replayed.rrd"):
         rows = rrd_rows(tmp_path / rrd)["/capture/damage"]
         assert [(frame, row["TextLog:level"]) for frame, row in rows] == [(2, ["WARN"]), (3, ["WARN"])]
+
+
+def test_replay_serves_the_web_viewer(tmp_path):
+    import sys
+    import urllib.parse
+
+    from bench.live_view import free_port
+    from media import REPO_ROOT
+
+    recording = McapSink(tmp_path / "run.mcap", OutputConfig())
+    for index in range(4):
+        recording.write(make_packet(index))
+    recording.close()
+    web_port, grpc_port = free_port(), free_port()
+    result = subprocess.run(
+        [sys.executable, "-m", "pipeline.cli", "replay", str(tmp_path / "run.mcap"), "--web",
+         "--set", f"web.web_port={web_port}", "--set", f"web.grpc_port={grpc_port}",
+         "--set", "web.keep_serving=false"], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    proxy = urllib.parse.quote(f"rerun+http://127.0.0.1:{grpc_port}/proxy", safe="")
+    assert f"replayed 4 frames from {tmp_path / 'run.mcap'} to http://127.0.0.1:{web_port}/?url={proxy}" \
+        in result.stderr

@@ -52,6 +52,32 @@ def test_run_writes_rrd_mcap_and_csv(tmp_path, box_video, model_flag):
     assert len({row[2] for row in rows[1:]}) <= 2
 
 
+def test_rule_events_reach_every_output_and_the_summary_is_the_objects_table(tmp_path, box_video, tiny_model):
+    import json
+
+    from mcap.reader import make_reader
+
+    from media import rrd_rows
+    from pipeline.summary import tracks_line
+    from stages.objects_table import read_objects_csv
+
+    config = tmp_path / "rules.toml"
+    config.write_text(f'[height]\nmodel = "{tiny_model}"\n\n[[rules]]\nname = "moving"\nmin_frames = 3\n')
+    result = heightpipe("run", box_video, "--out", tmp_path / "out", "--no-progress", "--config", config)
+    assert result.returncode == 0, result.stderr
+    events = [json.loads(line) for line in (tmp_path / "out.events.jsonl").read_text().splitlines()]
+    objects = read_objects_csv(tmp_path / "out.objects.csv")
+    assert events and len(events) == len(objects), "every confirmed track fires the rule once"
+    assert {e["track_id"] for e in events} == {o.track_id for o in objects if o.rules_fired == ["moving"]}
+    with open(tmp_path / "out.mcap", "rb") as f:
+        in_mcap = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/events"])]
+    assert [e["track_id"] for e in in_mcap] == [e["track_id"] for e in events]
+    assert len(rrd_rows(tmp_path / "out.rrd")["/events"]) == len(events)
+    assert f"events: {len(events)} height-rule firings" in result.stderr
+    summary_line = next(line for line in result.stderr.splitlines() if line.strip().startswith("tracks:"))
+    assert summary_line.strip() == f"tracks: {tracks_line(objects)}"
+
+
 def test_out_folder_gets_source_name(tmp_path, box_video, model_flag):
     result = heightpipe("run", box_video, "--out", f"{tmp_path}/", "--max-frames", 3, "--rerun", "off",
                         "--no-progress", *model_flag)

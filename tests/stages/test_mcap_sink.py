@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 import signal
 import subprocess
@@ -21,6 +22,7 @@ from rerun.chunk import RrdReader
 
 from core.config import OutputConfig
 from core.packets import CameraInfo, FeatureMatches, Frame, FramePacket, Track
+from stages.height_rules import RuleEvent
 from stages.mcap_sink import McapSink
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -104,9 +106,34 @@ def test_mcap_reads_back_with_foxglove_schemas_units_and_one_time_per_frame(tmp_
     assert set(np.unique(np.frombuffer(ground.data, np.uint8))) == {0, 255}
     calibration = frame["/camera/calibration"]
     assert list(calibration.K) == [50.0, 0, 32, 0, 50.0, 24, 0, 0, 1]
-    assert [text.text for text in frame["/camera/annotations"].texts] == ["#1 1.72\u00b10.04 m"]
+    assert [text.text for text in frame["/camera/annotations"].texts] == ["1.72 m \u00b14 cm"]
     matches = frame["/camera/matches"].points
     assert sorted(len(group.points) for group in matches) == [20, 40]  # 10 object, 20 background pairs
+
+
+def test_events_go_to_a_json_channel_at_their_frame(tmp_path):
+    path = tmp_path / "run.mcap"
+    sink = McapSink(path, OutputConfig(), recording_name="events")
+    for index in range(6):
+        packet = make_packet(index)
+        if index in (2, 5):
+            packet.events.append(RuleEvent("tall", 1, "person", index, index / FPS, 1.72, 0.04, "fused",
+                                           (20.0, 10.0, 10.0, 20.0), (1.5, 7.25)))
+        sink.write(packet)
+    sink.close()
+    with open(path, "rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        channel = next(c for c in summary.channels.values() if c.topic == "/events")
+        schema = summary.schemas[channel.schema_id]
+        assert (channel.message_encoding, schema.name, schema.encoding) == ("json", "heightpipe.RuleEvent",
+                                                                             "jsonschema")
+        frame_times = [m.log_time for _, _, m in reader.iter_messages(topics=["/tracks"])]
+        events = [(m.log_time, json.loads(m.data)) for _, _, m in reader.iter_messages(topics=["/events"])]
+    assert [log_time for log_time, _ in events] == [frame_times[2], frame_times[5]]
+    assert events[0][1] == {"rule": "tall", "track_id": 1, "class": "person", "frame": 2, "time_s": 0.2,
+                            "height_m": 1.72, "height_std_m": 0.04, "height_source": "fused",
+                            "box": [20.0, 10.0, 10.0, 20.0], "ground_xy_m": [1.5, 7.25]}
 
 
 def test_rerun_converts_the_mcap(tmp_path):
@@ -129,6 +156,7 @@ from pathlib import Path
 sys.path.insert(0, sys.argv[2])
 from test_mcap_sink import make_packet
 from core.config import OutputConfig
+from stages.height_rules import RuleEvent
 from stages.mcap_sink import McapSink
 sink = McapSink(Path(sys.argv[3]), OutputConfig(flush_interval_s=1.0))
 for index in range(1000):

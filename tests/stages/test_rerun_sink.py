@@ -16,8 +16,9 @@ from rerun.chunk import RrdReader
 from core.config import OutputConfig
 from core.errors import ConfigError, HeightpipeError
 from core.packets import FramePacket
+from stages.height_rules import RuleEvent
 from stages.rerun_sink import RerunSink
-from stages.sink_common import FrameEncoder
+from stages.sink_common import QUALITY_RGB, FrameEncoder
 
 from media import make_sink_packet, rrd_rows
 
@@ -32,10 +33,17 @@ def make_packet(index: int, complete: bool = True) -> FramePacket:
 
 def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
     path = tmp_path / "run.rrd"
-    sink = RerunSink(path, "save", OutputConfig(height_map_scale=2), "test-run")
+    sink = RerunSink(path, "save", OutputConfig(height_map_scale=2, ground_overlay=True), "test-run")
     indices = [0, 2, 4, 6, 8]  # a --stride 2 run: source frame indices
     for index in indices:
-        sink.write(make_packet(index, complete=index != 4))
+        packet = make_packet(index, complete=index != 4)
+        packet.camera.source = "camera-height" if index < 6 else "calibration"
+        if index == 6:
+            packet.tracks[0].updated = False  # track 1 coasts: its plot must show a gap
+        if index == 8:
+            packet.events.append(RuleEvent("tall", 1, "person", 8, 0.8, 1.72, 0.04, "geometry",
+                                           (20.0, 10.0, 10.0, 20.0), None))
+        sink.write(packet)
     sink.close()
     sink.close()  # idempotent: the runner's finally may follow an explicit close
 
@@ -54,13 +62,28 @@ def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
     assert cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR).shape == (H, W, 3)
 
     labels = {frame: row["Boxes2D:labels"] for frame, row in rows["/camera/tracks"]}
-    assert labels[0] == ["#2 1.20\u00b10.30 m"]
-    assert sorted(labels[6]) == ["#1 1.72\u00b10.04 m", "#2 1.20\u00b10.30 m"]
-    assert not any("#3" in label for frame_labels in labels.values() for label in frame_labels)
+    assert labels[0] == ["1.20 m \u00b130 cm"], "small boxes: the height line only"
+    assert labels[6] == ["1.72 m \u00b14 cm", "1.20 m \u00b130 cm"]
+    assert not any("0.60" in label for frame_labels in labels.values() for label in frame_labels)
+    colors = {frame: row["Boxes2D:colors"] for frame, row in rows["/camera/tracks"]}
+    settled, settling = (int.from_bytes(bytes(rgb) + b"\xff", "big") for rgb in
+                         (QUALITY_RGB["settled"], QUALITY_RGB["settling"]))
+    assert colors[6] == [settled, settling], "colour by quality: std 4 cm settled, 30 cm settling"
     height_series = rows["/tracks/1/height"]
-    assert [frame for frame, _ in height_series] == [4, 6, 8]
-    assert all(row["Scalars:scalars"] == pytest.approx([1.72]) for _, row in height_series)
+    assert [frame for frame, row in height_series if "Scalars:scalars" in row] == [4, 8]
+    assert all(row["Scalars:scalars"] == pytest.approx([1.72]) for _, row in height_series
+               if "Scalars:scalars" in row)
+    assert [frame for frame, row in height_series if "Clear:is_recursive" in row] == [6], \
+        "a coasting track's series is cleared (a gap in the plot), not extended flat"
     assert "/tracks/3/height" not in rows, "tentative tracks are not logged"
+    assert [frame for frame, _ in rows["/events"]] == [8]
+    assert rows["/events"][0][1]["TextLog:text"] == ["tall: #1 person 1.72 m \u00b14 cm (geometry)"]
+    marker = rows["/camera/events"][0][1]
+    assert marker["Boxes2D:half_sizes"] == [pytest.approx([11.0, 16.0])]
+    assert marker["Boxes2D:centers"] == [pytest.approx([25.0, 20.0])]
+    status = [(frame, row["TextDocument:text"][0]) for frame, row in rows["/status"]]
+    assert [frame for frame, _ in status] == [0, 6], "the camera state is logged when it changes"
+    assert "camera height given" in status[0][1] and "calibrated" in status[1][1]
 
     # Height map: uint16 mm at half size; the frame without one clears the stale map.
     depth = [(frame, row) for frame, row in rows["/height"] if "DepthImage:buffer" in row]

@@ -1,0 +1,55 @@
+"""The Foxglove layout for heightpipe's MCAP: docs/foxglove_layout.json (import it in Foxglove).
+
+Panels, for the topics ``stages/mcap_sink.py`` writes:
+
+    frame with the track boxes and labels  (Image: /camera/image + /camera/annotations)
+    height map, colour-mapped 0-5 m         (Image: /camera/height, 16UC1 millimetres)
+    height per track                        (Plot: one series per confirmed track of /tracks,
+                                             keyed by its id: Foxglove's dynamic series)
+    height-rule events                      (Table: /events)
+
+Built with foxglove-sdk's layout API, so the file follows Foxglove's own schema. Rebuild it
+after changing this module:  python -m stages.foxglove_layout docs/foxglove_layout.json
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import foxglove.layouts as fl
+
+HEIGHT_MAP_MAX_MM = 5000.0
+
+
+def heightpipe_layout() -> fl.Layout:
+    frame = fl.ImagePanel(title="Frame: tracks (height, quality colour)", config=fl.ImageConfig(
+        image_mode=fl.ImageModeConfig(
+            image_topic="/camera/image", calibration_topic="/camera/calibration",
+            annotations={"/camera/annotations": fl.ImageAnnotationSettings(visible=True),
+                         "/camera/matches": fl.ImageAnnotationSettings(visible=False)})))
+    height_map = fl.ImagePanel(title="Height map (0-5 m)", config=fl.ImageConfig(
+        image_mode=fl.ImageModeConfig(image_topic="/camera/height", color_mode="colormap",
+                                      color_map="turbo", min_value=0.0, max_value=HEIGHT_MAP_MAX_MM)))
+    heights = fl.PlotPanel(title="Height per track (m)", config=fl.PlotConfig(
+        paths=[fl.PlotSeries(value="/tracks.tracks[:]{confirmed==true}", dynamic_label_field="id",
+                             dynamic_value_field="height_m", label="track", show_line=True,
+                             timestamp_method="receiveTime")],
+        show_legend=True, legend_display="floating", y_axis_label="m", min_y_value=0.0))
+    events = fl.TablePanel(title="Height-rule events", config=fl.TableConfig(topic_path="/events"))
+    return fl.Layout(content=fl.SplitContainer(direction="row", items=[
+        fl.SplitItem(proportion=3, content=fl.SplitContainer(direction="column", items=[
+            fl.SplitItem(proportion=3, content=frame),
+            fl.SplitItem(proportion=2, content=height_map)])),
+        fl.SplitItem(proportion=2, content=fl.SplitContainer(direction="column", items=[
+            fl.SplitItem(proportion=3, content=heights),
+            fl.SplitItem(proportion=2, content=events)])),
+    ]))
+
+
+def layout_json() -> str:
+    return heightpipe_layout().to_json() + "\n"
+
+
+if __name__ == "__main__":
+    Path(sys.argv[1]).write_text(layout_json())
