@@ -13,6 +13,7 @@ import csv
 import sys
 from pathlib import Path
 
+Y_MAX_CM = 150.0   # values above are drawn at the top edge
 CLASSES = (("person", "people"), ("cyclist", "cyclists"), ("car_van", "cars/vans"), ("truck_bus", "trucks/buses"))
 
 
@@ -27,17 +28,19 @@ def plot_curves(runs: dict[str, list[dict[str, float]]], png: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     styles = ["-", "--", ":", "-."]
     for (name, rows), style in zip(runs.items(), styles):
         images = [r["images"] / 1000 for r in rows]
         for (key, label), colour in zip(CLASSES, ("tab:blue", "tab:green", "tab:orange", "tab:red")):
             for ax, prefix in zip(axes, ("top_", "top_heads_")):
-                ax.plot(images, [r[f"{prefix}{key}_cm"] for r in rows], style, color=colour,
-                        label=f"{label}" + (f" ({name})" if len(runs) > 1 else ""))
+                # A wild early camera-head guess can read kilometres: clip the drawing, not the data.
+                ax.plot(images, [min(r[f"{prefix}{key}_cm"], Y_MAX_CM) for r in rows], style, color=colour,
+                        marker=".", label=f"{label}" + (f" ({name})" if len(runs) > 1 else ""))
     axes[0].set_title("held-out object-top error, true camera")
     axes[1].set_title("same, camera height only (camera heads)")
     for ax in axes:
+        ax.set_ylim(0, Y_MAX_CM)
         ax.set_xlabel("training images seen (thousands)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("median |error| (cm)")
