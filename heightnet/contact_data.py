@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
-from heightnet.data import apply_colour, colour_jitter, match_features, Augmentation
+from heightnet.data import Augmentation, apply_colour, colour_jitter, match_features, window_matches
 from heightnet.normalisation import normalise
 
 CACHE_VERSION = 1
@@ -217,13 +217,7 @@ class ContactPairDataset:
             heights.append(hgt[None].astype(np.float32))
             grounds.append(gnd[None].astype(np.float32))
             instances.append(ins[None].astype(np.int64))
-        matches = _window_matches(seq.matches(t), x0, y0, sx, sy, W, H, flip)
-        if len(matches) > self.max_matches:
-            matches = matches[rng.choice(len(matches), self.max_matches, replace=False)]
-        padded = np.zeros((self.max_matches, 4), np.float32)
-        padded[:len(matches)] = matches
-        valid = np.zeros(self.max_matches, bool)
-        valid[:len(matches)] = True
+        padded, valid = window_matches(seq.matches(t), (x0, y0, w, h), self.size, flip, rng, self.max_matches)
         sample = {"image": np.stack(images), "offsets": np.stack(offsets), "height": np.stack(heights),
                   "ground": np.stack(grounds), "instance": np.stack(instances),
                   "K": camera.K.astype(np.float32), "R": camera.R.astype(np.float32),
@@ -232,18 +226,6 @@ class ContactPairDataset:
         if self.sampling.camera_channels:
             sample["camera_channels"] = np.stack([camera_channels(camera, W, H)] * 2)
         return sample
-
-
-def _window_matches(matches: np.ndarray, x0: int, y0: int, sx: float, sy: float, W: int, H: int,
-                    flip: bool) -> np.ndarray:
-    m = matches.copy()
-    m[:, [0, 2]] = (m[:, [0, 2]] + 0.5 - x0) * sx - 0.5
-    m[:, [1, 3]] = (m[:, [1, 3]] + 0.5 - y0) * sy - 0.5
-    if flip:
-        m[:, [0, 2]] = W - 1 - m[:, [0, 2]]
-    inside = ((m[:, [0, 2]] >= 0) & (m[:, [0, 2]] <= W - 1)).all(1) & \
-             ((m[:, [1, 3]] >= 0) & (m[:, [1, 3]] <= H - 1)).all(1)
-    return m[inside]
 
 
 def _nearest(array: np.ndarray, width: int, height: int) -> np.ndarray:

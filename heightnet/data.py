@@ -259,23 +259,34 @@ class PairDataset:
             targets.append(hgt[None].astype(np.float32))
             grounds.append(gnd[None].astype(np.float32))
             movers.append(mov[None].copy())
-        matches = seq.matches(t).copy()
-        matches[:, [0, 2]] = (matches[:, [0, 2]] + 0.5 - x0) * (W / w) - 0.5
-        matches[:, [1, 3]] = (matches[:, [1, 3]] + 0.5 - y0) * (H / h) - 0.5
-        if flip:
-            matches[:, [0, 2]] = W - 1 - matches[:, [0, 2]]
-        inside = ((matches[:, [0, 2]] >= 0) & (matches[:, [0, 2]] <= W - 1)).all(1) & \
-                 ((matches[:, [1, 3]] >= 0) & (matches[:, [1, 3]] <= H - 1)).all(1)
-        matches = matches[inside]
-        if len(matches) > self.max_matches:
-            matches = matches[rng.choice(len(matches), self.max_matches, replace=False)]
-        padded = np.zeros((self.max_matches, 4), np.float32)
-        padded[:len(matches)] = matches
-        valid = np.zeros(self.max_matches, bool)
-        valid[:len(matches)] = True
+        padded, valid = window_matches(seq.matches(t), (x0, y0, w, h), self.size, flip, rng, self.max_matches)
         return {"image": np.stack(images), "target": np.stack(targets), "ground": np.stack(grounds),
                 "mover": np.stack(movers), "matches": padded, "match_valid": valid,
                 "camera_height_m": np.float32(seq.camera_height_m)}
+
+
+def window_matches(matches: np.ndarray, window: tuple[int, int, int, int], size: tuple[int, int],
+                   flip: bool, rng: np.random.Generator, max_matches: int) -> tuple[np.ndarray, np.ndarray]:
+    """Matches (x0, y0, x1, y1 in frame pixels) moved into a crop window resized to ``size`` (and
+    mirrored), those inside kept, at most ``max_matches`` drawn; padded to max_matches x 4 with
+    a validity mask."""
+    x0, y0, w, h = window
+    W, H = size
+    m = matches.copy()
+    m[:, [0, 2]] = (m[:, [0, 2]] + 0.5 - x0) * (W / w) - 0.5
+    m[:, [1, 3]] = (m[:, [1, 3]] + 0.5 - y0) * (H / h) - 0.5
+    if flip:
+        m[:, [0, 2]] = W - 1 - m[:, [0, 2]]
+    inside = ((m[:, [0, 2]] >= 0) & (m[:, [0, 2]] <= W - 1)).all(1) & \
+             ((m[:, [1, 3]] >= 0) & (m[:, [1, 3]] <= H - 1)).all(1)
+    m = m[inside]
+    if len(m) > max_matches:
+        m = m[rng.choice(len(m), max_matches, replace=False)]
+    padded = np.zeros((max_matches, 4), np.float32)
+    padded[:len(m)] = m
+    valid = np.zeros(max_matches, bool)
+    valid[:len(m)] = True
+    return padded, valid
 
 
 def _resize_nearest(array: np.ndarray, width: int, height: int) -> np.ndarray:
