@@ -177,6 +177,8 @@ class OutputConfig:
     """Close the open MCAP chunk at least this often (source time), bounding loss on kill -9."""
     height_map_scale: int = 2
     """Store the height map at 1/N resolution in the recordings (1 = full)."""
+    height_map_every: int = 1
+    """Store the height map (and ground mask) of every Nth processed frame only (1 = every frame)."""
     progress: bool = True
     """Show a progress bar on stderr."""
 
@@ -248,6 +250,14 @@ class TrainConfig:
 
 
 @dataclass
+class RunConfig:
+    overlapped: bool = True
+    """Run capture, the network, the other stages and the sinks on their own threads (same output)."""
+    queue_frames: int = 4
+    """Frames waiting between two threads at most: back-pressure for files, drops for live sources."""
+
+
+@dataclass
 class BatchConfig:
     workers: int = 0
     """Parallel videos (0 = one per core)."""
@@ -265,6 +275,7 @@ class Config:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    run: RunConfig = field(default_factory=RunConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     batch: BatchConfig = field(default_factory=BatchConfig)

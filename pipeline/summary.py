@@ -40,6 +40,8 @@ def format_summary(summary: RunSummary) -> str:
     if summary.interrupted:
         lines.append(f"  stopped by {summary.interrupted}: the outputs hold the {summary.frames} frames processed")
     lines.append(f"  capture: {summary.capture.summary()}")
+    if summary.dropped_frames:
+        lines.append(f"  live source: {summary.dropped_frames} frames dropped while the pipeline was busy")
     lines.append(f"  camera: {CAMERA_SOURCES.get(summary.camera_source, summary.camera_source)}")
     by_class: dict[str, list[float]] = defaultdict(list)
     for cls, height, _std in summary.confirmed_tracks.values():
