@@ -138,3 +138,17 @@ def test_serve_mode_streams_and_still_writes_the_file(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "web viewer at http://127.0.0.1:9090/?url=rerun%2Bhttp://127.0.0.1:9876/proxy" in result.stderr
     assert [frame for frame, _ in rrd_rows(path, extra_columns=("time",))["/camera/image"]] == [0, 1, 2]
+
+
+def test_height_map_every_nth_frame_stays_in_view_between(tmp_path):
+    """``output.height_map_every = 3``: maps of frames 0, 3, 6 only, and no Clear in between."""
+    path = tmp_path / "run.rrd"
+    sink = RerunSink(path, "save", OutputConfig(height_map_every=3), "test-run")
+    for index in range(8):
+        sink.write(make_packet(index))
+    sink.close()
+    rows = rrd_rows(path)
+    assert [frame for frame, row in rows["/height"] if "DepthImage:buffer" in row] == [0, 3, 6]
+    assert [frame for frame, row in rows["/camera/ground"] if "SegmentationImage:buffer" in row] == [0, 3, 6]
+    assert not any("Clear:is_recursive" in row for _, row in rows["/height"] + rows["/camera/ground"])
+    assert len(rows["/camera/image"]) == 8
