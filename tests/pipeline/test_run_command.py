@@ -59,6 +59,19 @@ def test_out_folder_gets_source_name(tmp_path, box_video, model_flag):
     assert (tmp_path / "box.mcap").exists() and not (tmp_path / "box.rrd").exists()
 
 
+@pytest.mark.parametrize("sources, out, expected", [
+    (["a/cam.mp4"], None, ["recordings/cam"]),
+    (["a/cam.mp4"], "x/run1", ["x/run1"]),
+    (["a/cam.mp4", "b/cam.mp4", "rtsp://10.0.0.5/live"], "site", ["site/cam", "site/cam_2", "site/10_0_0_5_live"]),
+    (["a/cam.mp4", "0"], None, ["recordings/cam", "recordings/webcam0"]),
+])
+def test_one_prefix_per_source(sources, out, expected):
+    from core.config import Config
+    from pipeline.run_command import source_prefixes
+
+    assert source_prefixes(sources, out, Config()) == [Path(p) for p in expected]
+
+
 def test_several_sources_run_side_by_side_one_recording_set_each(tmp_path, box_video, model_flag):
     second = tmp_path / "cam2.mp4"
     second.write_bytes(box_video.read_bytes())

@@ -104,6 +104,8 @@ def test_bad_mode_and_config_are_config_errors(tmp_path):
         RerunSink(tmp_path / "x.rrd", "bogus", OutputConfig(), "x")
     with pytest.raises(ConfigError, match="jpeg_quality"):
         RerunSink(tmp_path / "x.rrd", "save", OutputConfig(jpeg_quality=0), "x")
+    with pytest.raises(ConfigError, match="height_map_every"):
+        RerunSink(tmp_path / "x.rrd", "save", OutputConfig(height_map_every=0), "x")
 
 
 def test_spawn_without_display_is_a_clear_error(tmp_path, monkeypatch):
