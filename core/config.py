@@ -169,15 +169,15 @@ class OutputConfig:
     """Write PREFIX.mcap."""
     csv: bool = True
     """Write PREFIX.tracks.csv."""
-    jpeg_quality: int = 85
-    """JPEG quality of the frames stored in the recordings."""
+    jpeg_quality: int = 75
+    """JPEG quality of the frames stored in the recordings (75: MCAP under 2 GB per hour of the 640x360 sample)."""
     mcap_chunk_size: int = 1048576
     """MCAP chunk size in bytes: smaller chunks lose less on a hard kill."""
     flush_interval_s: float = 1.0
     """Close the open MCAP chunk at least this often (source time), bounding loss on kill -9."""
     height_map_scale: int = 2
     """Store the height map at 1/N resolution in the recordings (1 = full)."""
-    height_map_every: int = 1
+    height_map_every: int = 5
     """Store the height map (and ground mask) of every Nth processed frame only (1 = every frame)."""
     progress: bool = True
     """Show a progress bar on stderr."""
