@@ -86,7 +86,7 @@ class McapSink:
         self._calibration = CameraCalibrationChannel("/camera/calibration", context=context)
         self._height = RawImageChannel("/camera/height", context=context, metadata={
             "unit": "mm", "scale": "0.001 m per count", "quantity": "height above ground",
-            "downscale": str(self.encoder.height_map_scale)})
+            "downscale": str(self.encoder.height_map_scale), "every": str(self.encoder.height_map_every)})
         self._ground = RawImageChannel("/camera/ground", context=context,
                                        metadata={"values": "255 = ground plane, 0 = other"})
         self._annotations = ImageAnnotationsChannel("/camera/annotations", context=context)

@@ -55,7 +55,7 @@ def write_mcap(path: Path, indices: list[int], **config) -> McapSink:
 def test_mcap_reads_back_with_foxglove_schemas_units_and_one_time_per_frame(tmp_path):
     path = tmp_path / "run.mcap"
     indices = list(range(0, 24, 2))  # --stride 2: source indices, 2.2 s of source time
-    sink = write_mcap(path, indices, flush_interval_s=1.0, height_map_scale=2)
+    sink = write_mcap(path, indices, flush_interval_s=1.0, height_map_scale=2, height_map_every=1)
 
     with open(path, "rb") as stream:
         reader = make_reader(stream, validate_crcs=True, decoder_factories=[DecoderFactory()])

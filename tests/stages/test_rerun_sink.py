@@ -32,7 +32,7 @@ def make_packet(index: int, complete: bool = True) -> FramePacket:
 
 def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
     path = tmp_path / "run.rrd"
-    sink = RerunSink(path, "save", OutputConfig(height_map_scale=2), "test-run")
+    sink = RerunSink(path, "save", OutputConfig(height_map_scale=2, height_map_every=1), "test-run")
     indices = [0, 2, 4, 6, 8]  # a --stride 2 run: source frame indices
     for index in indices:
         sink.write(make_packet(index, complete=index != 4))
