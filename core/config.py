@@ -52,7 +52,7 @@ class GroundConfig:
 @dataclass
 class HeightConfig:
     model: str = ""
-    """ONNX model path ("" = the model shipped in stages/models/)."""
+    """ONNX model path ("" = the model shipped in stages/models/, "int8" = its INT8 quantisation)."""
     threads: int = 2
     """ONNX Runtime intra-op threads."""
 
