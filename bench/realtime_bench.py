@@ -90,6 +90,8 @@ def main() -> None:
     parser.add_argument("--modes", default="sequential,overlapped")
     parser.add_argument("--int8", default="", metavar="MODEL", help="also measure this (INT8) ONNX model")
     parser.add_argument("--frames", type=int, default=0, help="frames per run (0 = the whole clip)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="config override for every run (repeatable)")
     parser.add_argument("--tmp", type=Path, default=Path(tempfile.gettempdir()) / "heightpipe-bench",
                         help="where the upscaled clip is made and kept")
     args = parser.parse_args()
@@ -110,7 +112,7 @@ def main() -> None:
                     overrides = [f"run.overlapped={'true' if mode == 'overlapped' else 'false'}",
                                  f'height.model="{model_path}"', 'output.rerun="save"',
                                  "output.mcap=true", "output.csv=true",
-                                 f"capture.max_frames={args.frames}"]
+                                 f"capture.max_frames={args.frames}", *args.overrides]
                     if cameras > 1:  # as `heightpipe run SRC1 SRC2` shares the network's threads out
                         overrides.append(f"height.threads={max(1, 2 // cameras)}")
                     load = os.getloadavg()[0]
