@@ -83,21 +83,24 @@ def source_prefixes(sources: list[str], out: str | None, config: Config) -> list
 
 def run_one(source: str, config: Config, prefix: Path) -> int:
     """Process one source and print its summary; the exit status of `heightpipe run SOURCE`."""
-    from core.errors import HeightpipeError
     from pipeline.runner import run_pipeline
     from pipeline.summary import format_summary
 
-    try:
-        summary = run_pipeline(source, config, prefix)
-    except HeightpipeError as exc:
-        print(f"heightpipe: error: {source}: {exc}", file=sys.stderr)
-        return exc.exit_code
+    summary = run_pipeline(source, config, prefix)
     print(format_summary(summary), file=sys.stderr)
     return 130 if summary.interrupted else 0
 
 
 def _camera_process(source: str, config: Config, prefix: Path) -> None:
-    sys.exit(run_one(source, config, prefix))
+    """One camera of several: its errors name the source, the other cameras carry on."""
+    from core.errors import HeightpipeError
+
+    try:
+        code = run_one(source, config, prefix)
+    except HeightpipeError as exc:
+        print(f"heightpipe: error: {source}: {exc}", file=sys.stderr)
+        code = exc.exit_code
+    sys.exit(code)
 
 
 def run_side_by_side(sources: list[str], config: Config, prefixes: list[Path]) -> int:
@@ -143,10 +146,5 @@ def main(args: argparse.Namespace, config: Config) -> int:
         raise ConfigError("capture.stride must be at least 1")
     prefixes = source_prefixes(args.sources, args.out, config)
     if len(args.sources) == 1:
-        from pipeline.runner import run_pipeline
-        from pipeline.summary import format_summary
-
-        summary = run_pipeline(args.sources[0], config, prefixes[0])
-        print(format_summary(summary), file=sys.stderr)
-        return 130 if summary.interrupted else 0
+        return run_one(args.sources[0], config, prefixes[0])
     return run_side_by_side(args.sources, config, prefixes)
