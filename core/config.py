@@ -57,7 +57,7 @@ class GroundConfig:
 @dataclass
 class HeightConfig:
     model: str = ""
-    """ONNX model path ("" = the model shipped in stages/models/)."""
+    """ONNX model path ("" = the model shipped in stages/models/, "int8" = its INT8 quantisation)."""
     threads: int = 2
     """ONNX Runtime intra-op threads."""
 
@@ -179,14 +179,16 @@ class OutputConfig:
     """Write PREFIX.objects.csv: one row per confirmed track (the table to hand on)."""
     ground_overlay: bool = False
     """Tint the ground plane in the rerun frame view (its layer can be toggled there either way)."""
-    jpeg_quality: int = 85
-    """JPEG quality of the frames stored in the recordings."""
+    jpeg_quality: int = 75
+    """JPEG quality of the frames stored in the recordings (75: MCAP under 2 GB per hour of the 640x360 sample)."""
     mcap_chunk_size: int = 1048576
     """MCAP chunk size in bytes: smaller chunks lose less on a hard kill."""
     flush_interval_s: float = 1.0
     """Close the open MCAP chunk at least this often (source time), bounding loss on kill -9."""
     height_map_scale: int = 2
     """Store the height map at 1/N resolution in the recordings (1 = full)."""
+    height_map_every: int = 5
+    """Store the height map (and ground mask) of every Nth processed frame only (1 = every frame)."""
     progress: bool = True
     """Show a progress bar on stderr."""
 
@@ -384,6 +386,14 @@ class TrainV2Config:
 
 
 @dataclass
+class RunConfig:
+    overlapped: bool = True
+    """Run capture, the network, the other stages and the sinks on their own threads (same output)."""
+    queue_frames: int = 4
+    """Frames waiting between two threads at most: back-pressure for files, drops for live sources."""
+
+
+@dataclass
 class BatchConfig:
     workers: int = 0
     """Parallel videos (0 = one per core)."""
@@ -405,6 +415,7 @@ class Config:
     events: EventsConfig = field(default_factory=EventsConfig)
     rules: list[RuleConfig] = field(default_factory=list)
     """``[[rules]]``: height rules; each firing becomes an event (stages/height_rules.py)."""
+    run: RunConfig = field(default_factory=RunConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     train_v2: TrainV2Config = field(default_factory=TrainV2Config)

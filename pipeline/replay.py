@@ -77,6 +77,8 @@ class ReplayResult:
 class _FrameMessages:
     log_time: int
     by_topic: dict[str, Any] = field(default_factory=dict)
+    maps_every: int = 1
+    """The recording stored height maps of every Nth frame only (``output.height_map_every``)."""
 
 
 class _TruncatedMcap(Exception):
@@ -139,6 +141,7 @@ def _read_frames(path: Path) -> Iterator[_FrameMessages]:
 
     decoders, schemas, channels = DecoderFactory(), {}, {}
     current: _FrameMessages | None = None
+    maps_every = 1
     with open(path, "rb") as stream:
         try:
             for record in linear_records(stream):
@@ -157,6 +160,9 @@ def _read_frames(path: Path) -> Iterator[_FrameMessages]:
                         if current is not None:
                             yield current
                         current = _FrameMessages(record.log_time)
+                    if channel.topic == "/camera/height":
+                        maps_every = max(1, int(channel.metadata.get("every", "1")))
+                    current.maps_every = maps_every
                     if channel.topic == "/events":  # several events may share a frame
                         current.by_topic.setdefault("/events", []).append(decode(record.data))
                     else:
@@ -199,6 +205,9 @@ def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time:
     if (calibration := messages.get("/camera/calibration")) is not None and any(calibration.K):
         logger.log_camera(np.array(calibration.K, dtype=np.float64).reshape(3, 3),
                           calibration.width, calibration.height)
+    if record is not None and record.frame_index % frame.maps_every:  # between stored maps: keep the last
+        logger.keep("/height")
+        logger.keep("/camera/ground")
     if (height := messages.get("/camera/height")) is not None:
         pixels = _raw_pixels(height)
         logger.log_height_mm(pixels if pixels.dtype == np.uint16 else height_to_mm(pixels, 1))

@@ -13,7 +13,7 @@ from __future__ import annotations
 import signal
 import time
 from collections import defaultdict
-from contextlib import contextmanager
+from contextlib import closing, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -22,7 +22,7 @@ from core.config import Config
 from core.packets import CameraInfo
 from core.stage import Sink
 from pipeline.stage_chain import build_stage_chain, close_all
-from stages.capture import CaptureStats, FrameSource, open_source
+from stages.capture import CaptureStats, FrameSource, StreamSource, open_source
 from stages.objects_table import ObjectTable
 
 
@@ -52,6 +52,9 @@ class RunSummary:
     webhook: str = ""
     """How the webhook fared ("" = none configured)."""
     interrupted: str | None = None
+    dropped_frames: int = 0
+    """Frames of a live source dropped because the pipeline was busy (overlapped runs only)."""
+    overlapped: bool = False
     camera_source: str = "none"
     outputs: RunOutputs | None = None
 
@@ -212,10 +215,20 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         raise
     progress = _progress(source, config)
     total = expected_frames(source, config)
+    overlapped = None
+    if config.run.overlapped:
+        from pipeline.overlapped import OverlappedChain
+
+        overlapped = OverlappedChain(chain, camera, config.run.queue_frames,
+                                     live=isinstance(source, StreamSource))
+        packets = overlapped.packets(source.frames())
+    else:
+        packets = chain.run(source.frames(), camera)
+    summary.overlapped = overlapped is not None
     start = time.perf_counter()
     try:
-        with _StopSignals().installed() as stop_signals:
-            for packet in chain.run(source.frames(), camera):
+        with _StopSignals().installed() as stop_signals, closing(packets):
+            for packet in packets:
                 with stop_signals.writing():
                     summary.objects.add(packet)
                     for name, sink in sinks:
@@ -236,6 +249,8 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         summary.interrupted = str(stop)
     finally:
         summary.wall_s = time.perf_counter() - start
+        if overlapped is not None:
+            summary.dropped_frames = overlapped.dropped
         progress.close()
         close_all([stage for _, stage in chain.stages + sinks] + [source])
         webhook = next((sink.webhook_stats for name, sink in sinks if name == "events"), None)

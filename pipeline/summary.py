@@ -45,6 +45,8 @@ def format_summary(summary: RunSummary) -> str:
     if summary.interrupted:
         lines.append(f"  stopped by {summary.interrupted}: the outputs hold the {summary.frames} frames processed")
     lines.append(f"  capture: {summary.capture.summary()}")
+    if summary.dropped_frames:
+        lines.append(f"  live source: {summary.dropped_frames} frames dropped while the pipeline was busy")
     lines.append(f"  camera: {CAMERA_STATES.get(summary.camera_source, summary.camera_source)}")
     lines.append(f"  tracks: {tracks_line(summary.objects.sorted_rows())}")
     if summary.events or summary.webhook:

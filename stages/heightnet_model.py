@@ -19,6 +19,8 @@ from core.errors import ModelError
 from core.packets import CameraInfo, Frame
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
+SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
+"""The shipped model quantised to INT8 (heightnet/quantize.py): ``height.model = "int8"``."""
 OUTPUT_UNITS = ("metres", "camera_height_fraction")
 
 
@@ -68,7 +70,7 @@ class HeightNetModel:
     def __init__(self, model_path: str | Path = "", threads: int = 2):
         import onnxruntime as ort
 
-        path = Path(model_path) if model_path else SHIPPED_MODEL
+        path = SHIPPED_INT8_MODEL if str(model_path) == "int8" else Path(model_path) if model_path else SHIPPED_MODEL
         if not path.is_file():
             raise ModelError(f"model file not found: {path}")
         options = ort.SessionOptions()

@@ -91,7 +91,7 @@ class McapSink:
         self._calibration = CameraCalibrationChannel("/camera/calibration", context=context)
         self._height = RawImageChannel("/camera/height", context=context, metadata={
             "unit": "mm", "scale": "0.001 m per count", "quantity": "height above ground",
-            "downscale": str(self.encoder.height_map_scale)})
+            "downscale": str(self.encoder.height_map_scale), "every": str(self.encoder.height_map_every)})
         self._ground = RawImageChannel("/camera/ground", context=context,
                                        metadata={"values": "255 = ground plane, 0 = other"})
         self._annotations = ImageAnnotationsChannel("/camera/annotations", context=context)
@@ -122,11 +122,12 @@ class McapSink:
                         log_time=log_time)
         if packet.camera.K is not None:
             self._calibration.log(_calibration(packet.camera, stamp), log_time=log_time)
-        height_mm = self.encoder.height_mm(packet)
+        maps_due = self.encoder.maps_due(packet)
+        height_mm = self.encoder.height_mm(packet) if maps_due else None
         if height_mm is not None:
             self._height.log(_raw_image(height_mm.astype("<u2", copy=False), "16UC1", stamp),
                              log_time=log_time)
-        if packet.ground_mask is not None:
+        if packet.ground_mask is not None and maps_due:
             mask = packet.ground_mask
             ground = (mask if mask.dtype == np.bool_ else mask != 0).view(np.uint8) * np.uint8(255)
             self._ground.log(_raw_image(ground, "mono8", stamp), log_time=log_time)

@@ -122,6 +122,11 @@ class RerunFrameLogger:
             self.rec.log(path, rr.Clear(recursive=False))
         self._logged_before = self._logged_now
 
+    def keep(self, path: str) -> None:
+        """Leave what ``path`` showed last in place this frame (a map stored every Nth frame only)."""
+        if path in self._logged_before:
+            self._logged_now.add(path)
+
     def _log(self, path: str, entity: object) -> None:
         self.rec.log(path, entity)
         if path in self._PER_FRAME:
@@ -279,11 +284,15 @@ class RerunSink:
         log.log_camera_state(camera.source)
         if camera.K is not None:
             log.log_camera(camera.K, camera.width, camera.height)
-        if packet.ground_mask is not None:
-            log.log_ground_mask(packet.ground_mask)
-        height_mm = self.encoder.height_mm(packet)
-        if height_mm is not None:
-            log.log_height_mm(height_mm)
+        if not self.encoder.maps_due(packet):
+            log.keep("/camera/ground")
+            log.keep("/height")
+        else:
+            if packet.ground_mask is not None:
+                log.log_ground_mask(packet.ground_mask)
+            height_mm = self.encoder.height_mm(packet)
+            if height_mm is not None:
+                log.log_height_mm(height_mm)
         if packet.matches is not None:
             log.log_matches(packet.matches.prev_pts, packet.matches.curr_pts, packet.matches.on_object)
         log.log_tracks(packet.tracks)

@@ -30,6 +30,8 @@ def check_output_config(config: OutputConfig) -> None:
         raise ConfigError(f"output.jpeg_quality must be 1..100, got {config.jpeg_quality}")
     if config.height_map_scale < 1:
         raise ConfigError(f"output.height_map_scale must be >= 1, got {config.height_map_scale}")
+    if config.height_map_every < 1:
+        raise ConfigError(f"output.height_map_every must be >= 1, got {config.height_map_every}")
     if config.mcap_chunk_size < 1024:
         raise ConfigError(f"output.mcap_chunk_size must be >= 1024 bytes, got {config.mcap_chunk_size}")
     if config.flush_interval_s < 0:
@@ -43,9 +45,10 @@ class FrameEncoder:
     encoder pay once per frame.
     """
 
-    def __init__(self, jpeg_quality: int, height_map_scale: int):
+    def __init__(self, jpeg_quality: int, height_map_scale: int, height_map_every: int = 1):
         self.jpeg_params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)]
         self.height_map_scale = int(height_map_scale)
+        self.height_map_every = max(1, int(height_map_every))
         self._jpeg_source: np.ndarray | None = None
         self._jpeg: bytes = b""
         self._height_source: np.ndarray | None = None
@@ -53,7 +56,15 @@ class FrameEncoder:
 
     @classmethod
     def from_config(cls, config: OutputConfig) -> FrameEncoder:
-        return cls(config.jpeg_quality, config.height_map_scale)
+        return cls(config.jpeg_quality, config.height_map_scale, config.height_map_every)
+
+    def maps_due(self, packet: FramePacket) -> bool:
+        """Whether this frame's height map and ground mask are stored (``output.height_map_every``).
+
+        By source index, so a recording's maps fall on the same frames whatever the stride or
+        the sink; between them, viewers keep showing the last map stored.
+        """
+        return packet.frame.index % self.height_map_every == 0
 
     def jpeg(self, packet: FramePacket) -> bytes:
         image = packet.frame.image

@@ -35,7 +35,8 @@ def test_traffic_clip_all_frames_and_outputs_read_back(tmp_path):
         summary = make_reader(f).get_summary()
     counts = {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}
     assert counts["/camera/image"] == 917
-    assert counts["/camera/height"] == 917
+    # output.height_map_every = 5: maps of frames 0, 5, ..., 915
+    assert counts["/camera/height"] == counts["/camera/ground"] == 184
 
     converted = subprocess.run(["rerun", "mcap", "convert", f"{prefix}.mcap", "-o", str(tmp_path / "conv.rrd")],
                                capture_output=True, text=True, timeout=300)

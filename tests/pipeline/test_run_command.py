@@ -85,6 +85,41 @@ def test_out_folder_gets_source_name(tmp_path, box_video, model_flag):
     assert (tmp_path / "box.mcap").exists() and not (tmp_path / "box.rrd").exists()
 
 
+@pytest.mark.parametrize("sources, out, expected", [
+    (["a/cam.mp4"], None, ["recordings/cam"]),
+    (["a/cam.mp4"], "x/run1", ["x/run1"]),
+    (["a/cam.mp4", "b/cam.mp4", "rtsp://10.0.0.5/live"], "site", ["site/cam", "site/cam_2", "site/10_0_0_5_live"]),
+    (["a/cam.mp4", "0"], None, ["recordings/cam", "recordings/webcam0"]),
+])
+def test_one_prefix_per_source(sources, out, expected):
+    from core.config import Config
+    from pipeline.run_command import source_prefixes
+
+    assert source_prefixes(sources, out, Config()) == [Path(p) for p in expected]
+
+
+def test_several_sources_run_side_by_side_one_recording_set_each(tmp_path, box_video, model_flag):
+    second = tmp_path / "cam2.mp4"
+    second.write_bytes(box_video.read_bytes())
+    result = heightpipe("run", box_video, second, box_video, "--out", tmp_path / "many", "--rerun", "off",
+                        *model_flag, timeout=240)
+    assert result.returncode == 0, result.stderr
+    assert result.stderr.count("processed 30 frames") == 3
+    tables = [tmp_path / "many" / f"{name}.tracks.csv" for name in ("box", "cam2", "box_2")]
+    assert all(table.exists() and (tmp_path / "many" / f"{table.name.split('.')[0]}.mcap").exists()
+               for table in tables)
+    assert tables[0].read_text() == tables[1].read_text() == tables[2].read_text()
+
+
+def test_one_bad_source_of_several_fails_the_run_but_not_the_others(tmp_path, box_video, model_flag):
+    result = heightpipe("run", box_video, tmp_path / "missing.mp4", "--out", f"{tmp_path}/", "--rerun", "off",
+                        "--no-progress", *model_flag, timeout=240)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    assert "missing.mp4" in result.stderr and "processed 30 frames" in result.stderr
+    assert (tmp_path / "box.tracks.csv").exists()
+
+
 def test_missing_video(tmp_path, model_flag):
     assert_clean_error(heightpipe("run", tmp_path / "nope.mp4", *model_flag), "no such file")
 

@@ -75,3 +75,19 @@ def test_shipped_model_loads():
     model = HeightNetModel()
     out = model.infer(Frame(0, 0.0, np.zeros((360, 640, 3), np.uint8)))
     assert out.height.shape == (360, 640)
+
+
+def test_shipped_int8_model_loads_with_the_fp32_metadata_and_agrees_with_it():
+    """``height.model = "int8"``: the quantised model reads like the FP32 one, to a few per cent."""
+    import cv2
+
+    from stages.heightnet_model import SHIPPED_INT8_MODEL
+
+    fp32, int8 = HeightNetModel(""), HeightNetModel("int8")
+    assert int8.path == SHIPPED_INT8_MODEL and int8.info == fp32.info
+    capture = cv2.VideoCapture(str(SHIPPED_MODEL.parents[2] / "recordings" / "sample.mp4"))
+    ok, image = capture.read()
+    capture.release()
+    assert ok
+    a, b = fp32.infer(Frame(0, 0.0, image)), int8.infer(Frame(0, 0.0, image))
+    assert np.mean(np.abs(a.height - b.height)) < 0.05 * np.mean(np.abs(a.height)) + 1e-3

@@ -57,7 +57,7 @@ def write_mcap(path: Path, indices: list[int], **config) -> McapSink:
 def test_mcap_reads_back_with_foxglove_schemas_units_and_one_time_per_frame(tmp_path):
     path = tmp_path / "run.mcap"
     indices = list(range(0, 24, 2))  # --stride 2: source indices, 2.2 s of source time
-    sink = write_mcap(path, indices, flush_interval_s=1.0, height_map_scale=2)
+    sink = write_mcap(path, indices, flush_interval_s=1.0, height_map_scale=2, height_map_every=1)
 
     with open(path, "rb") as stream:
         reader = make_reader(stream, validate_crcs=True, decoder_factories=[DecoderFactory()])
@@ -203,3 +203,17 @@ def test_kill_9_loses_at_most_the_last_flush_interval(tmp_path):
                      if chunk.entity_path == "/camera/image" and not chunk.is_static
                      and "EncodedImage:blob" in chunk.to_record_batch().schema.names)
     assert image_rows == len(recovered)
+
+
+def test_height_map_every_nth_frame(tmp_path):
+    """``output.height_map_every = 4``: height map and ground mask of frames 0, 4, 8 only."""
+    path = tmp_path / "run.mcap"
+    write_mcap(path, list(range(10)), height_map_every=4)
+    frames = defaultdict(list)
+    with open(path, "rb") as stream:
+        for _schema, channel, message in make_reader(stream).iter_messages():
+            frames[channel.topic].append(message.log_time)
+    assert len(frames["/camera/image"]) == len(frames["/tracks"]) == 10
+    image_times = frames["/camera/image"]
+    for topic in ("/camera/height", "/camera/ground"):
+        assert frames[topic] == [image_times[0], image_times[4], image_times[8]]

@@ -33,7 +33,8 @@ def make_packet(index: int, complete: bool = True) -> FramePacket:
 
 def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
     path = tmp_path / "run.rrd"
-    sink = RerunSink(path, "save", OutputConfig(height_map_scale=2, ground_overlay=True), "test-run")
+    sink = RerunSink(path, "save", OutputConfig(height_map_scale=2, ground_overlay=True, height_map_every=1),
+                     "test-run")
     indices = [0, 2, 4, 6, 8]  # a --stride 2 run: source frame indices
     for index in indices:
         packet = make_packet(index, complete=index != 4)
@@ -127,6 +128,8 @@ def test_bad_mode_and_config_are_config_errors(tmp_path):
         RerunSink(tmp_path / "x.rrd", "bogus", OutputConfig(), "x")
     with pytest.raises(ConfigError, match="jpeg_quality"):
         RerunSink(tmp_path / "x.rrd", "save", OutputConfig(jpeg_quality=0), "x")
+    with pytest.raises(ConfigError, match="height_map_every"):
+        RerunSink(tmp_path / "x.rrd", "save", OutputConfig(height_map_every=0), "x")
 
 
 def test_spawn_without_display_is_a_clear_error(tmp_path, monkeypatch):
@@ -161,3 +164,17 @@ def test_serve_mode_streams_and_still_writes_the_file(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "web viewer at http://127.0.0.1:9090/?url=rerun%2Bhttp://127.0.0.1:9876/proxy" in result.stderr
     assert [frame for frame, _ in rrd_rows(path, extra_columns=("time",))["/camera/image"]] == [0, 1, 2]
+
+
+def test_height_map_every_nth_frame_stays_in_view_between(tmp_path):
+    """``output.height_map_every = 3``: maps of frames 0, 3, 6 only, and no Clear in between."""
+    path = tmp_path / "run.rrd"
+    sink = RerunSink(path, "save", OutputConfig(height_map_every=3), "test-run")
+    for index in range(8):
+        sink.write(make_packet(index))
+    sink.close()
+    rows = rrd_rows(path)
+    assert [frame for frame, row in rows["/height"] if "DepthImage:buffer" in row] == [0, 3, 6]
+    assert [frame for frame, row in rows["/camera/ground"] if "SegmentationImage:buffer" in row] == [0, 3, 6]
+    assert not any("Clear:is_recursive" in row for _, row in rows["/height"] + rows["/camera/ground"])
+    assert len(rows["/camera/image"]) == 8

@@ -1,0 +1,91 @@
+"""Memory over a long run: `heightpipe run` on looped video, resident memory every few minutes.
+
+    python -m bench.soak_bench [--minutes 30] [--every 5] [--clip CLIP]
+
+The clip (default: the shipped sample) is repeated, by copying its packets into /tmp, until it
+lasts ``--minutes`` of video; the whole pipeline runs over it with all three outputs on, and
+the table prints the process's resident memory (VmRSS) at every ``--every`` minutes of video,
+with the wall time, the frames/s so far and the output sizes then. The verdict compares the
+last reading with the one at ``--every`` minutes (the first one after start-up): flat means
+within 10 %.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from pathlib import Path
+
+from bench.clips import SAMPLE, looped_clip
+
+FLAT_SHARE = 0.10
+
+
+def rss_mb() -> float:
+    """This process's resident memory now (VmRSS), in MB."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def main() -> None:
+    import cv2
+
+    from core.config import load_config
+    from pipeline.runner import run_pipeline
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--clip", type=Path, default=SAMPLE)
+    parser.add_argument("--minutes", type=float, default=30.0, help="minutes of (looped) video")
+    parser.add_argument("--every", type=float, default=5.0, help="minutes of video between readings")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    parser.add_argument("--tmp", type=Path, default=Path(tempfile.gettempdir()) / "heightpipe-bench")
+    args = parser.parse_args()
+
+    args.tmp.mkdir(parents=True, exist_ok=True)
+    clip = looped_clip(args.clip, args.minutes, args.tmp)
+    capture = cv2.VideoCapture(str(clip))
+    fps = capture.get(cv2.CAP_PROP_FPS) or 15.0
+    capture.release()
+    config = load_config(None, args.overrides)
+    config.output.progress = False
+    config.output.rerun = "save"
+    config.output.mcap = config.output.csv = True
+    readings: list[tuple[float, float, float, float]] = []  # video min, wall s, fps, RSS MB
+    frames_per_reading = max(1, round(args.every * 60.0 * fps))
+
+    with tempfile.TemporaryDirectory() as out_dir:
+        prefix = Path(out_dir) / "soak"
+
+        def on_frame(frames: int, _total: int | None, elapsed_s: float) -> None:
+            if frames % frames_per_reading == 0:
+                readings.append((frames / fps / 60.0, elapsed_s, frames / elapsed_s, rss_mb()))
+                print(f"  {readings[-1][0]:.1f} min of video: RSS {readings[-1][3]:.0f} MB", flush=True)
+
+        print(f"clip: {clip} ({fps:g} frames/s), {args.minutes:g} min of video; load average "
+              f"{os.getloadavg()[0]:.1f} at the start", flush=True)
+        summary = run_pipeline(str(clip), config, prefix, on_frame=on_frame)
+        sizes = {name: path.stat().st_size / 1e6 for name, path in
+                 (("mcap", summary.outputs.mcap), ("rrd", summary.outputs.rrd))}
+
+    print()
+    print("| video min | wall s | frames/s so far | RSS MB |")
+    print("|---|---|---|---|")
+    for video_min, wall_s, so_far, rss in readings:
+        print(f"| {video_min:.1f} | {wall_s:.0f} | {so_far:.1f} | {rss:.0f} |")
+    video_h = summary.frames / fps / 3600.0
+    print()
+    print(f"frames: {summary.frames}; MCAP {sizes['mcap'] / 1e3 / video_h:.2f} GB/h, "
+          f".rrd {sizes['rrd'] / 1e3 / video_h:.2f} GB/h of video; load average {os.getloadavg()[0]:.1f} at the end")
+    if len(readings) >= 2:
+        first, last = readings[0][3], readings[-1][3]
+        change = (last - first) / first
+        verdict = "flat" if abs(change) <= FLAT_SHARE else "NOT flat"
+        print(f"RSS from {readings[0][0]:.0f} to {readings[-1][0]:.0f} min: {first:.0f} -> {last:.0f} MB "
+              f"({change:+.1%}): {verdict} (within {FLAT_SHARE:.0%})")
+
+
+if __name__ == "__main__":
+    main()
