@@ -41,20 +41,20 @@ def occlusion_sequence(tmp_path_factory):
 
 def test_every_object_above_the_threshold_fires_once_and_none_below(occlusion_sequence):
     from core.config import Config, RuleConfig
-    from pipeline.eval_tracks import (build_eval_stages, matched_at_iou, prime_sequence_background,
-                                      sequence_packets)
-    from stages.height_rules import HeightRules
+    from pipeline.eval_metrics import matched_at_iou
+    from pipeline.eval_sequences import build_eval_chain, prime_sequence_background, sequence_packets
 
     sequence, config = occlusion_sequence, Config()
-    stages = build_eval_stages(sequence, config, "oracle", geometry=True)
-    prime_sequence_background(sequence, stages, config)
-    rule = RuleConfig(name="over_2_5m", min_height_m=THRESHOLD_M, max_std_m=0.10, min_frames=5)
-    stages.append(("rules", HeightRules([rule], calibrated=True)))
+    # The rules stage joins the chain after tracking, as in `heightpipe run`.
+    config.rules = [RuleConfig(name="over_2_5m", min_height_m=THRESHOLD_M, max_std_m=0.10, min_frames=5)]
+    chain = build_eval_chain(sequence, config, "oracle", geometry=True)
+    assert chain.stages[-1][0] == "rules"
+    prime_sequence_background(sequence, chain, config)
 
     followed: dict[int, Counter] = {}  # track id -> generator object ids it covered
     true_heights: dict[int, list[float]] = {}
     firings: list[int] = []
-    with contextlib.closing(sequence_packets(sequence, stages)) as packets:
+    with contextlib.closing(sequence_packets(sequence, chain)) as packets:
         for _truth, packet in packets:
             objects = [o for o in sequence.objects(packet.frame.index) if o.visible_fraction >= 0.3]
             for o in objects:
