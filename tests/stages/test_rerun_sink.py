@@ -169,7 +169,7 @@ def test_serve_mode_streams_and_still_writes_the_file(tmp_path):
 def test_height_map_every_nth_frame_stays_in_view_between(tmp_path):
     """``output.height_map_every = 3``: maps of frames 0, 3, 6 only, and no Clear in between."""
     path = tmp_path / "run.rrd"
-    sink = RerunSink(path, "save", OutputConfig(height_map_every=3), "test-run")
+    sink = RerunSink(path, "save", OutputConfig(height_map_every=3, ground_overlay=True), "test-run")
     for index in range(8):
         sink.write(make_packet(index))
     sink.close()
