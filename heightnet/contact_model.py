@@ -25,9 +25,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-# Offsets are regressed divided by this (pixels): targets run from 0 to a few hundred pixels,
-# and unit-scale outputs train better than raw pixel values.
-OFFSET_SCALE = 16.0
+# One unit of the offset head's output, in input pixels: targets run from 0 to a few hundred
+# pixels, and unit-scale outputs train better than raw pixel values.
+OFFSET_UNIT_PX = 32.0
 DEPTHWISE_EXPAND = 3.35
 CAMERA_OUTPUTS = ("pitch_rad", "roll_rad", "log_focal_y")
 
@@ -115,7 +115,7 @@ class ContactNet(nn.Module):
             x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
             x = block(torch.cat([x, skip], 1))
         size = image.shape[-2:]
-        offsets = F.interpolate(self.offset_head(x) * (2 * OFFSET_SCALE), size=size, mode="bilinear",
+        offsets = F.interpolate(self.offset_head(x) * OFFSET_UNIT_PX, size=size, mode="bilinear",
                                 align_corners=False)
         ground = F.interpolate(self.ground_head(x), size=size, mode="bilinear", align_corners=False)
         return offsets, ground, camera
