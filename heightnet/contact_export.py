@@ -18,7 +18,7 @@ import torch
 
 from heightnet.contact_model import CAMERA_OUTPUTS, ContactNet
 from heightnet.contact_train import load_network
-from heightnet.normalisation import MEAN, STD
+from heightnet.export import input_metadata
 
 OPSET = 17
 OUTPUT_UNITS = "ground_contact_offsets"
@@ -27,11 +27,7 @@ OUTPUT_UNITS = "ground_contact_offsets"
 def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int) -> dict[str, str]:
     return {
         "heightpipe.format_version": "2",
-        "heightpipe.input_width": str(width),
-        "heightpipe.input_height": str(height),
-        "heightpipe.mean": json.dumps(list(MEAN)),
-        "heightpipe.std": json.dumps(list(STD)),
-        "heightpipe.color_order": "RGB",
+        **input_metadata(width, height),
         "heightpipe.output_units": OUTPUT_UNITS,
         "heightpipe.outputs": json.dumps({
             "offsets": "du, dv in input pixels from each pixel to the image of its ground-contact point",

@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
 import torch
 
 from core.config import TrainV2Config
@@ -33,6 +32,7 @@ from heightnet.contact_data import ContactPairDataset, ContactSampling, ContactS
 from heightnet.contact_eval import evaluate, scores_row
 from heightnet.contact_losses import ContactLossWeights, contact_loss
 from heightnet.contact_model import ContactArchitecture, ContactNet
+from heightnet.train import collate, epoch_order
 
 LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "ground", "camera",
                "mover_rmse_cm"]
@@ -92,7 +92,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
         while step < end:
             epoch, position = divmod(step, per_epoch)
             dataset.epoch = epoch
-            order = np.random.default_rng([config.seed, epoch, 7]).permutation(len(dataset))
+            order = epoch_order(config.seed, epoch, len(dataset))
             items = order[position * config.batch_size:(position + 1) * config.batch_size]
             batch = collate([dataset[int(i)] for i in items])
             for group in optimiser.param_groups:
@@ -204,10 +204,6 @@ def load_network(path: Path) -> ContactNet:
     net.load_state_dict(state.get("ema", state["model"]))
     net.eval()
     return net
-
-
-def collate(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
-    return {k: torch.from_numpy(np.stack([item[k] for item in items])) for k in items[0]}
 
 
 def _mover_rmse_cm(losses: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]) -> float:

@@ -27,15 +27,22 @@ class ExportReport:
     metadata: dict[str, str]
 
 
-def contract_metadata(net: HeightNet, input_width: int, input_height: int, data_hash: str,
-                      trained_steps: int) -> dict[str, str]:
+def input_metadata(input_width: int, input_height: int) -> dict[str, str]:
+    """The input contract every exported height network states: size, normalisation, colours."""
     return {
-        "heightpipe.format_version": "1",
         "heightpipe.input_width": str(input_width),
         "heightpipe.input_height": str(input_height),
         "heightpipe.mean": json.dumps(list(MEAN)),
         "heightpipe.std": json.dumps(list(STD)),
         "heightpipe.color_order": "RGB",
+    }
+
+
+def contract_metadata(net: HeightNet, input_width: int, input_height: int, data_hash: str,
+                      trained_steps: int) -> dict[str, str]:
+    return {
+        "heightpipe.format_version": "1",
+        **input_metadata(input_width, input_height),
         "heightpipe.output_units": net.encoding.output_units,
         "heightpipe.architecture": net.arch.name,
         "heightpipe.backbone": net.arch.backbone,

@@ -121,7 +121,7 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
             dataset.epoch = epoch
             order = epoch_order(config.seed, epoch, len(dataset))
             items = order[position * config.batch_size:(position + 1) * config.batch_size]
-            batch = _collate([dataset[int(i)] for i in items])
+            batch = collate([dataset[int(i)] for i in items])
             for group in optimiser.param_groups:
                 group["lr"] = learning_rate(step, config)
             encoded, ground_logit = net(batch["image"].flatten(0, 1))
@@ -173,7 +173,8 @@ def _save(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer, st
         "data_hash": data_hash, "config": dataclasses.asdict(config)})
 
 
-def _collate(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
+def collate(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
+    """Samples (dicts of NumPy arrays) stacked into one batch of tensors."""
     return {k: torch.from_numpy(np.stack([item[k] for item in items])) for k in items[0]}
 
 
