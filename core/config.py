@@ -364,6 +364,10 @@ class TrainV2Config:
     """Encoder channels at 1/2, 1/4, 1/8, 1/16 of the input."""
     camera_channels: bool = False
     """CAM-Conv input channels from a known camera (the network then needs the camera to run)."""
+    context: list[int] = field(default_factory=lambda: [2, 4, 8])
+    """Dilations of residual context blocks at 1/16 (the receptive field tall objects need)."""
+    detection: bool = True
+    """Detection head (centre heatmaps + boxes per class) trained with the offsets."""
     crop_probability: float = 0.5
     """Share of samples that are native-resolution windows around a mover (else whole frames)."""
     max_matches: int = 64
@@ -383,6 +387,8 @@ class TrainV2Config:
     ground_weight: float = 0.2
     camera_weight: float = 0.1
     """Gaussian NLL of the camera heads (pitch, roll, focal length; whole frames only)."""
+    detection_weight: float = 1.0
+    """Centre focal loss + box L1 of the detection head."""
 
 
 @dataclass

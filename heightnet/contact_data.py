@@ -28,6 +28,7 @@ import numpy as np
 
 from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
 from heightnet.data import Augmentation, apply_colour, colour_jitter, match_features, window_matches
+from heightnet.detection_targets import detection_targets, window_boxes
 from heightnet.normalisation import normalise
 
 CACHE_VERSION = 1
@@ -146,6 +147,7 @@ class ContactSampling:
     flip: bool = True
     colour: bool = True
     camera_channels: bool = False
+    detection: bool = False            # centre heatmap and box targets (heightnet/detection_targets.py)
 
 
 class ContactPairDataset:
@@ -189,7 +191,8 @@ class ContactPairDataset:
         """image 2x3xHxW, offsets 2x2xHxW (NaN = no label), height 2x1xHxW metres (NaN = no
         label), ground 2x1xHxW, instance 2x1xHxW int64, K/R (3x3) and C (3) of the window's
         camera, camera_target (3) with camera_valid, matches Kx4 with match_valid, and
-        camera_channels 2x2xHxW when enabled."""
+        camera_channels 2x2xHxW when enabled, and with detection det_centre 2x3xhxw, det_box
+        2x4xhxw, det_box_mask 2x1xhxw at 1/4 of the input."""
         s, t = self.index[item]
         seq = self.sequences[s]
         rng = np.random.default_rng([self.seed, self.epoch, item])
@@ -200,8 +203,14 @@ class ContactPairDataset:
         sx, sy = W / w, H / h
         camera = seq.camera.window(x0, y0, w, h, W, H, flip)
         images, offsets, heights, grounds, instances = [], [], [], [], []
+        detection: dict[str, list[np.ndarray]] = {"centre": [], "box": [], "box_mask": []}
         for frame in (t - 1, t):
             win = (slice(y0, y0 + h), slice(x0, x0 + w))
+            if self.sampling.detection:
+                boxes = window_boxes(np.asarray(seq.instance[frame][win]), np.asarray(seq.semantic[frame][win]),
+                                     sx, sy, flip, W)
+                for key, value in detection_targets(boxes, W, H).items():
+                    detection[key].append(value)
             rgb = cv2.resize(np.asarray(seq.rgb[frame][win]), (W, H), interpolation=cv2.INTER_AREA)
             off = _nearest(np.asarray(seq.offsets[frame][win], np.float32), W, H) * np.float32([sx, sy])
             hgt = _nearest(np.asarray(seq.height_m[frame][win], np.float32), W, H)
@@ -223,6 +232,8 @@ class ContactPairDataset:
                   "K": camera.K.astype(np.float32), "R": camera.R.astype(np.float32),
                   "C": camera.C.astype(np.float32), "camera_target": camera_targets(camera, H),
                   "camera_valid": np.bool_(not cropped), "matches": padded, "match_valid": valid}
+        if self.sampling.detection:
+            sample.update({f"det_{key}": np.stack(value) for key, value in detection.items()})
         if self.sampling.camera_channels:
             sample["camera_channels"] = np.stack([camera_channels(camera, W, H)] * 2)
         return sample

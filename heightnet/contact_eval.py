@@ -9,7 +9,10 @@ camera heads, averaged over the sequence's frames as a fixed camera would be.
   class group (people, cyclists, cars/vans, trucks/buses);
 * mover-pixel RMSE (true height > 0.1 m on a mover) per camera-height row, with and without
   trucks and buses;
-* the camera heads' median pitch error (degrees) and focal-length error (per cent).
+* the camera heads' median pitch error (degrees) and focal-length error (per cent);
+* with a detection head: per class, the share of true boxes (at least ``MIN_BOX_PX`` tall at the
+  input size) found at IoU >= 0.5 and score >= ``DETECTION_SCORE`` (recall), and the share of
+  detections that match a true box (precision).
 """
 
 from __future__ import annotations
@@ -24,7 +27,10 @@ import numpy as np
 import torch
 
 from stages.ground_contact import PinholeCamera, camera_from_angles, heights_from_offsets
+from stages.centre_detections import CentreDetections, box_iou, centre_detections
 from heightnet.contact_data import CLASS_GROUPS, ContactSequence, camera_channels, camera_targets
+from heightnet.contact_model import DETECTION_CLASSES, DETECTION_STRIDE
+from heightnet.detection_targets import window_boxes
 from heightnet.normalisation import normalise
 from synth.dataset import CLASS_NAMES
 
@@ -33,6 +39,8 @@ GROUPS = ("person", "cyclist", "car/van", "truck/bus")
 # and a contact point predicted at the horizon must not decode to kilometres.
 MAX_HEIGHT_M = 50.0
 BIG = "truck/bus"
+DETECTION_SCORE = 0.3
+MATCH_IOU = 0.5
 
 
 @dataclass
@@ -46,19 +54,26 @@ class Scores:
     pitch_error_deg: float = float("nan")
     focal_error_pct: float = float("nan")
     roll_error_deg: float = float("nan")
+    detection_recall: dict[str, float] = field(default_factory=dict)    # per detection class
+    detection_precision: float = float("nan")
 
 
 def predict(net: torch.nn.Module, rgb: np.ndarray, width: int, height: int,
-            camera: PinholeCamera | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets H x W x 2 (input pixels) and camera-head outputs (6) for one whole frame."""
+            camera: PinholeCamera | None = None) -> tuple[np.ndarray, np.ndarray, CentreDetections | None]:
+    """Offsets H x W x 2 (input pixels), camera-head outputs (6) and, with a detection head,
+    the detected boxes (input pixels) for one whole frame."""
     image = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
     x = torch.from_numpy(normalise(image))[None]
     channels = None
     if getattr(net, "arch", None) is not None and net.arch.camera_channels:
         channels = torch.from_numpy(camera_channels(camera, width, height))[None]
     with torch.no_grad():
-        offsets, _, cam = net(x, channels)
-    return offsets[0].permute(1, 2, 0).numpy(), cam[0].numpy()
+        offsets, _, cam, *detection = net(x, channels)
+    found = None
+    if detection:
+        centre, box = (t[0].numpy() for t in detection)
+        found = centre_detections(centre, box, DETECTION_STRIDE, DETECTION_SCORE)
+    return offsets[0].permute(1, 2, 0).numpy(), cam[0].numpy(), found
 
 
 def heads_camera(camera_outputs: np.ndarray, width: int, height: int, source_size: tuple[int, int],
@@ -80,19 +95,25 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
     sq_all: dict[str, list[np.ndarray]] = defaultdict(list)
     sq_heads: dict[str, list[np.ndarray]] = defaultdict(list)
     pitch_err, focal_err, roll_err = [], [], []
+    found_true: dict[int, list[bool]] = defaultdict(list)
+    detections_matched: list[bool] = []
     for seq in sequences:
         _, src_h, src_w, _ = seq.rgb.shape
         true_camera = seq.camera.window(0, 0, src_w, src_h, width, height)
         row = f"{seq.camera.height_m * 100:.0f}"
         used = range(min(frames, len(seq)))
         outputs = [predict(net, np.asarray(seq.rgb[t]), width, height, true_camera) for t in used]
-        mean_camera = np.mean([cam for _, cam in outputs], axis=0)
+        mean_camera = np.mean([cam for _, cam, _ in outputs], axis=0)
         head_camera = heads_camera(mean_camera, width, height, (src_w, src_h), seq.camera.height_m)
         truth_cam = camera_targets(true_camera, height)
         pitch_err.append(abs(math.degrees(mean_camera[0] - truth_cam[0])))
         roll_err.append(abs(math.degrees(mean_camera[1] - truth_cam[1])))
         focal_err.append(abs(math.exp(mean_camera[2] - truth_cam[2]) - 1) * 100)
-        for t, (offsets, _) in zip(used, outputs):
+        for t, (offsets, _, found) in zip(used, outputs):
+            if found is not None:
+                truths = window_boxes(np.asarray(seq.instance[t]), np.asarray(seq.semantic[t]),
+                                      width / src_w, height / src_h, False, width)
+                _match_detections(found, truths, found_true, detections_matched)
             truth = cv2.resize(np.asarray(seq.height_m[t], np.float32), (width, height),
                                interpolation=cv2.INTER_NEAREST_EXACT)
             instance = cv2.resize(np.asarray(seq.instance[t]), (width, height),
@@ -135,7 +156,33 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
     scores.pitch_error_deg = float(np.median(pitch_err))
     scores.roll_error_deg = float(np.median(roll_err))
     scores.focal_error_pct = float(np.median(focal_err))
+    for index, name in enumerate(DETECTION_CLASSES):
+        if found_true[index]:
+            scores.detection_recall[name] = float(np.mean(found_true[index]))
+    if detections_matched:
+        scores.detection_precision = float(np.mean(detections_matched))
     return scores
+
+
+def _match_detections(found: CentreDetections, truths: list, found_true: dict[int, list[bool]],
+                      detections_matched: list[bool]) -> None:
+    """Greedy one-to-one matching per class in score order (IoU >= MATCH_IOU)."""
+    for index in range(len(DETECTION_CLASSES)):
+        true_boxes = np.array([[b.x0, b.y0, b.x1, b.y1] for b in truths if b.cls == index], np.float32).reshape(-1, 4)
+        mine = found.classes == index
+        boxes = found.boxes[mine]
+        taken = np.zeros(len(true_boxes), bool)
+        if len(boxes) and len(true_boxes):
+            iou = box_iou(boxes, true_boxes)
+            for row in iou:   # detections come in score order
+                row = np.where(taken, 0.0, row)
+                best = int(row.argmax())
+                hit = row[best] >= MATCH_IOU
+                taken[best] |= hit
+                detections_matched.append(bool(hit))
+        else:
+            detections_matched.extend([False] * len(boxes))
+        found_true[index].extend(taken.tolist())
 
 
 def scores_row(scores: Scores) -> dict[str, float]:
@@ -152,4 +199,7 @@ def scores_row(scores: Scores) -> dict[str, float]:
     row["pitch_error_deg"] = scores.pitch_error_deg
     row["roll_error_deg"] = scores.roll_error_deg
     row["focal_error_pct"] = scores.focal_error_pct
+    for name in DETECTION_CLASSES:
+        row[f"det_recall_{name}"] = scores.detection_recall.get(name, float("nan"))
+    row["det_precision"] = scores.detection_precision
     return row

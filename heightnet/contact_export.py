@@ -2,7 +2,8 @@
 
 The graph ends at what the network knows: ``offsets`` (1 x 2 x H x W, input pixels to each
 pixel's ground-contact point), ``ground_logit`` (1 x 1 x H x W) and ``camera`` (1 x 6: pitch,
-roll, log vertical focal length in image heights, then their log-variances). Metres need the
+roll, log vertical focal length in image heights, then their log-variances) and, with a
+detection head, ``centre_logit`` (1 x 3 x H/4 x W/4) and ``box`` (1 x 4 x H/4 x W/4). Metres need the
 camera and come from the closed form in ``stages/ground_contact.py`` at run time. The metadata says
 so (``heightpipe.output_units = ground_contact_offsets``) beside the usual input contract.
 """
@@ -16,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from heightnet.contact_model import CAMERA_OUTPUTS, ContactNet
+from heightnet.contact_model import CAMERA_OUTPUTS, DETECTION_CLASSES, DETECTION_STRIDE, ContactNet
 from heightnet.contact_train import load_network
 from heightnet.export import input_metadata
 
@@ -24,15 +25,23 @@ OPSET = 17
 OUTPUT_UNITS = "ground_contact_offsets"
 
 
+def output_names(net: ContactNet) -> list[str]:
+    return ["offsets", "ground_logit", "camera"] + (["centre_logit", "box"] if net.arch.detection else [])
+
+
 def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int) -> dict[str, str]:
+    outputs = {
+        "offsets": "du, dv in input pixels from each pixel to the image of its ground-contact point",
+        "ground_logit": "ground-plane logit",
+        "camera": [*CAMERA_OUTPUTS, *(f"log_var_{name}" for name in CAMERA_OUTPUTS)]}
+    if net.arch.detection:
+        outputs["centre_logit"] = {"classes": list(DETECTION_CLASSES), "stride": DETECTION_STRIDE}
+        outputs["box"] = "centre dx, dy from the cell centre, box width, height; input pixels"
     return {
         "heightpipe.format_version": "2",
         **input_metadata(width, height),
         "heightpipe.output_units": OUTPUT_UNITS,
-        "heightpipe.outputs": json.dumps({
-            "offsets": "du, dv in input pixels from each pixel to the image of its ground-contact point",
-            "ground_logit": "ground-plane logit",
-            "camera": [*CAMERA_OUTPUTS, *(f"log_var_{name}" for name in CAMERA_OUTPUTS)]}),
+        "heightpipe.outputs": json.dumps(outputs),
         "heightpipe.architecture": json.dumps(net.arch.to_dict()),
         "heightpipe.trained_images": str(images_seen),
         "heightpipe.created": datetime.date.today().isoformat(),
@@ -55,7 +64,7 @@ def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp.onnx")
     torch.onnx.export(net, (example,), str(tmp), input_names=["image"],
-                      output_names=["offsets", "ground_logit", "camera"], opset_version=OPSET,
+                      output_names=output_names(net), opset_version=OPSET,
                       do_constant_folding=True, dynamo=False)
     model = onnx.load(str(tmp))
     del model.metadata_props[:]
@@ -68,9 +77,9 @@ def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict
     with torch.no_grad():
         expected = [t.numpy() for t in net(example)]
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
-    got = session.run(["offsets", "ground_logit", "camera"], {"image": example.numpy()})
-    diffs = {name: float(np.abs(a - b).max()) for name, a, b in
-             zip(("offsets", "ground_logit", "camera"), got, expected)}
+    names = output_names(net)
+    got = session.run(names, {"image": example.numpy()})
+    diffs = {name: float(np.abs(a - b).max()) for name, a, b in zip(names, got, expected)}
     if max(diffs.values()) > tolerance:
         raise ValueError(f"ONNX Runtime differs from PyTorch by {max(diffs.values()):.2e} in {out}")
     return {"size_bytes": out.stat().st_size, **diffs}

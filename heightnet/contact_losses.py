@@ -9,6 +9,8 @@ count for more than its pixel share next to a bus of 4,000, so mover pixels are 
           + si * scale-invariant log loss (paper Eq. 1) on decoded mover heights
           + consistency * paper Eq. 2 on decoded heights at matched points of frames t-1, t
           + ground * BCE(ground plane) + camera * Gaussian NLL of the camera heads (whole frames)
+          + detection * (CenterNet focal loss on centre heatmaps + L1 on centre offsets and log
+            box sizes at object centres), when the network has a detection head
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import torch
 import torch.nn.functional as F
 
 from stages.ground_contact import torch_heights_from_offsets
+from heightnet.contact_model import BOX_UNIT_PX, DETECTION_STRIDE
 from heightnet.losses import sample_at
 
 ABOVE_GROUND_M = 0.1
@@ -39,6 +42,7 @@ class ContactLossWeights:
     consistency: float = 1.0
     ground: float = 0.2
     camera: float = 0.1
+    detection: float = 1.0
 
 
 def object_weights(instance: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -61,8 +65,10 @@ def weighted_mean(values: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
 
 
 def contact_loss(offsets: torch.Tensor, ground_logit: torch.Tensor, camera: torch.Tensor,
-                 batch: dict[str, torch.Tensor], weights: ContactLossWeights) -> dict[str, torch.Tensor]:
-    """All terms for B pairs (network outputs 2B x ..., frames t-1, t interleaved)."""
+                 batch: dict[str, torch.Tensor], weights: ContactLossWeights,
+                 detection: tuple[torch.Tensor, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+    """All terms for B pairs (network outputs 2B x ..., frames t-1, t interleaved);
+    ``detection`` is the head's (centre logits, boxes) when it has one."""
     target = batch["offsets"].flatten(0, 1)
     height_true = batch["height"].flatten(0, 1)
     labelled = torch.isfinite(target[:, :1]) & torch.isfinite(height_true)
@@ -92,6 +98,11 @@ def contact_loss(offsets: torch.Tensor, ground_logit: torch.Tensor, camera: torc
                        + weights.height * losses["height"] + weights.si * losses["si"]
                        + weights.consistency * losses["consistency"] + weights.ground * losses["ground"]
                        + weights.camera * losses["camera"])
+    if detection is not None and "det_centre" in batch:
+        centre_logit, box = detection
+        losses["centre"] = centre_focal(centre_logit, batch["det_centre"].flatten(0, 1))
+        losses["box"] = box_l1(box, batch["det_box"].flatten(0, 1), batch["det_box_mask"].flatten(0, 1))
+        losses["total"] = losses["total"] + weights.detection * (losses["centre"] + losses["box"])
     losses["decoded"] = height.detach()
     losses["movers"] = movers
     return losses
@@ -126,3 +137,22 @@ def camera_nll(camera: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) 
     mean, log_var = camera[:, :n], camera[:, n:].clamp(min=MIN_LOG_VARIANCE)
     nll = 0.5 * (torch.exp(-log_var) * (mean - target) ** 2 + log_var)
     return nll[valid].mean()
+
+
+def centre_focal(logit: torch.Tensor, target: torch.Tensor, alpha: float = 2.0, beta: float = 4.0) -> torch.Tensor:
+    """CenterNet's penalty-reduced focal loss, per object (target 1 at centres, a Gaussian
+    around them that lowers the penalty of near misses)."""
+    p = torch.sigmoid(logit).clamp(1e-4, 1 - 1e-4)
+    centres = target.eq(1).float()
+    positive = -torch.log(p) * (1 - p) ** alpha * centres
+    negative = -torch.log(1 - p) * p ** alpha * (1 - target) ** beta * (1 - centres)
+    return (positive.sum() + negative.sum()) / centres.sum().clamp(min=1.0)
+
+
+def box_l1(box: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """L1 at object centres on the centre offset (in cells) and the log box size."""
+    if not (mask > 0).any():
+        return box.sum() * 0.0
+    raw = torch.cat([box[:, :2] / DETECTION_STRIDE, torch.log(box[:, 2:] / BOX_UNIT_PX)], 1)
+    goal = torch.cat([target[:, :2] / DETECTION_STRIDE, target[:, 2:]], 1)
+    return ((raw - goal).abs() * mask).sum() / (4 * mask.sum())

@@ -9,7 +9,18 @@ Outputs for an input of W x H (both multiples of 32):
 * ``camera`` B x 6: pitch (rad), roll (rad), log of the vertical focal length in image heights,
   then the log-variance of each (the heads' own uncertainty), from pooled deepest features:
   image-level camera regression as in Hold-Geoffroy et al. (CVPR 2018), for users who know only
-  the mounting height.
+  the mounting height;
+* with ``detection``: ``centre_logit`` B x 3 x H/4 x W/4 (person, cyclist, vehicle centre
+  heatmaps) and ``box`` B x 4 x H/4 x W/4 (the centre's offset from its cell centre and the box
+  width and height, all in input pixels): a CenterNet-style head (Zhou et al. 2019) on the same
+  features, so objects cost no second network.
+
+The offset of a pixel on a person's head is the person's height in pixels, so every pixel must
+see down to its object's foot. Four stride-2 levels of two 3x3 convolutions see about 90 input
+pixels, and the first trained network's offsets saturated at 20-30 px (people 40-60 px tall read
+at half their height). ``context`` adds residual dilated 3x3 convolutions at 1/16 (dilations 2,
+4, 8 see another ~450 px) whose last BatchNorm starts at zero: a grown network starts as the
+network it grew from, so an accumulated training state carries over.
 
 Two trunks of equal width, chosen by measurement (``heightnet/README.md``): ``plain`` (3x3
 convolution, BatchNorm, ReLU, twice per level) and ``depthwise`` (MobileNetV2 inverted
@@ -19,6 +30,7 @@ input channels (CAM-Convs, Facil et al. CVPR 2019), computed from a known camera
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -30,6 +42,13 @@ from torch import nn
 OFFSET_UNIT_PX = 32.0
 DEPTHWISE_EXPAND = 3.35
 CAMERA_OUTPUTS = ("pitch_rad", "roll_rad", "log_focal_y")
+DETECTION_CLASSES = ("person", "cyclist", "vehicle")
+DETECTION_STRIDE = 4
+# Box sizes are predicted as log(size / BOX_UNIT_PX): far people of 8 px and buses of 300 px
+# are then equally easy targets.
+BOX_UNIT_PX = 16.0
+# Initial centre probability (CenterNet's prior): the heatmap starts almost empty, as it mostly is.
+CENTRE_PRIOR = 0.1
 
 
 @dataclass(frozen=True)
@@ -37,13 +56,24 @@ class ContactArchitecture:
     trunk: str = "plain"                       # "plain" or "depthwise"
     widths: tuple[int, ...] = (16, 32, 64, 128)  # encoder at 1/2, 1/4, 1/8, 1/16
     camera_channels: int = 0                   # CAM-Conv input channels (0 = RGB only)
+    context: tuple[int, ...] = ()              # dilations of residual context blocks at 1/16
+    detection: bool = False                    # centre heatmaps and boxes at 1/4
 
     def to_dict(self) -> dict:
-        return {"trunk": self.trunk, "widths": list(self.widths), "camera_channels": self.camera_channels}
+        return {"trunk": self.trunk, "widths": list(self.widths), "camera_channels": self.camera_channels,
+                "context": list(self.context), "detection": self.detection}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ContactArchitecture":
-        return cls(d["trunk"], tuple(d["widths"]), int(d["camera_channels"]))
+        return cls(d["trunk"], tuple(d["widths"]), int(d["camera_channels"]),
+                   tuple(d.get("context", ())), bool(d.get("detection", False)))
+
+    def grows_from(self, old: "ContactArchitecture") -> bool:
+        """True if this network is ``old`` plus new parts only (context blocks, a detection
+        head) — the parts that start as no-ops, so ``old``'s weights carry over."""
+        same_core = (self.trunk, self.widths, self.camera_channels) == (old.trunk, old.widths, old.camera_channels)
+        return (same_core and self.context[:len(old.context)] == old.context
+                and (self.detection or not old.detection) and self != old)
 
 
 def conv_bn_relu(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
@@ -69,6 +99,43 @@ class InvertedResidual(nn.Module):
         return x + y if self.residual else y
 
 
+class ContextBlock(nn.Module):
+    """Residual dilated 3x3 convolution, then a 1x1; the last BatchNorm's scale starts at zero
+    so that the block starts as the identity (Goyal et al. 2017's zero-init residuals)."""
+
+    def __init__(self, width: int, dilation: int):
+        super().__init__()
+        self.body = nn.Sequential(
+            nn.Conv2d(width, width, 3, padding=dilation, dilation=dilation, bias=False),
+            nn.BatchNorm2d(width), nn.ReLU(inplace=True),
+            nn.Conv2d(width, width, 1, bias=False), nn.BatchNorm2d(width))
+        nn.init.zeros_(self.body[-1].weight)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.relu(x + self.body(x))
+
+
+class DetectionHead(nn.Module):
+    """Centre heatmaps (logits) and boxes from the 1/4-resolution decoder features."""
+
+    def __init__(self, width: int):
+        super().__init__()
+        self.trunk = nn.Sequential(nn.Conv2d(width, width, 3, padding=1), nn.ReLU(inplace=True))
+        self.centre = nn.Conv2d(width, len(DETECTION_CLASSES), 1)
+        self.box = nn.Conv2d(width, 4, 1)
+        nn.init.constant_(self.centre.bias, math.log(CENTRE_PRIOR / (1 - CENTRE_PRIOR)))
+        nn.init.zeros_(self.box.weight)
+        nn.init.zeros_(self.box.bias)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Centre logits, and boxes (dx, dy, w, h) in input pixels."""
+        y = self.trunk(x)
+        raw = self.box(y)
+        box = torch.cat([raw[:, :2] * DETECTION_STRIDE,
+                         BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
+        return self.centre(y), box
+
+
 def level(trunk: str, cin: int, cout: int, stride: int) -> nn.Sequential:
     if trunk == "plain":
         return nn.Sequential(conv_bn_relu(cin, cout, stride), conv_bn_relu(cout, cout))
@@ -80,7 +147,8 @@ def level(trunk: str, cin: int, cout: int, stride: int) -> nn.Sequential:
 
 
 class ContactNet(nn.Module):
-    """Encoder to 1/16, decoder with skips back to 1/2, heads at 1/2, camera from the bottleneck."""
+    """Encoder to 1/16 (plus context), decoder with skips back to 1/2, heads at 1/2, detection
+    at 1/4, camera from the bottleneck. Returns (offsets, ground, camera[, centre, box])."""
 
     def __init__(self, arch: ContactArchitecture = ContactArchitecture()):
         super().__init__()
@@ -96,6 +164,8 @@ class ContactNet(nn.Module):
         self.decoder = nn.ModuleList()
         for i in range(len(w) - 1, 0, -1):   # 1/16 -> 1/8 -> 1/4 -> 1/2
             self.decoder.append(level(arch.trunk, w[i] + w[i - 1], w[i - 1], 1))
+        self.context = nn.Sequential(*(ContextBlock(w[-1], d) for d in arch.context))
+        self.detection_head = DetectionHead(w[1]) if arch.detection else None
         self.offset_head = nn.Conv2d(w[0], 2, 3, padding=1)
         self.ground_head = nn.Conv2d(w[0], 1, 3, padding=1)
         self.camera_head = nn.Sequential(nn.Linear(2 * w[-1], 64), nn.ReLU(inplace=True),
@@ -109,16 +179,22 @@ class ContactNet(nn.Module):
         for block in self.encoder:
             x = block(x)
             skips.append(x)
+        x = self.context(x)
         pooled = torch.cat([x.mean((2, 3)), x.amax((2, 3))], 1)
         camera = self.camera_head(pooled)
+        quarter = None
         for block, skip in zip(self.decoder, reversed(skips[:-1])):
             x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
             x = block(torch.cat([x, skip], 1))
+            if skip is skips[1]:
+                quarter = x
         size = image.shape[-2:]
         offsets = F.interpolate(self.offset_head(x) * OFFSET_UNIT_PX, size=size, mode="bilinear",
                                 align_corners=False)
         ground = F.interpolate(self.ground_head(x), size=size, mode="bilinear", align_corners=False)
-        return offsets, ground, camera
+        if self.detection_head is None:
+            return offsets, ground, camera
+        return (offsets, ground, camera, *self.detection_head(quarter))
 
 
 def count_parameters(net: nn.Module) -> int:

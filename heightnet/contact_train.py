@@ -35,23 +35,28 @@ from heightnet.contact_model import ContactArchitecture, ContactNet
 from heightnet.train import collate, epoch_order
 
 LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "ground", "camera",
-               "mover_rmse_cm"]
+               "centre", "box", "mover_rmse_cm"]
 WARMUP_STEPS = 200
+# Modules a grown network may add to a state (contact_model.ContactArchitecture.grows_from).
+GROWN_PARTS = ("context.", "detection_head.")
 
 
 def architecture_of(config: TrainV2Config) -> ContactArchitecture:
-    return ContactArchitecture(config.trunk, tuple(config.widths), 2 if config.camera_channels else 0)
+    return ContactArchitecture(config.trunk, tuple(config.widths), 2 if config.camera_channels else 0,
+                               tuple(config.context), config.detection)
 
 
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
     return ContactLossWeights(config.offset_all_weight, config.height_weight, config.si_weight,
-                              config.consistency_weight, config.ground_weight, config.camera_weight)
+                              config.consistency_weight, config.ground_weight, config.camera_weight,
+                              config.detection_weight)
 
 
-def learning_rate(step: int, config: TrainV2Config) -> float:
+def learning_rate(step: int, config: TrainV2Config, warmup_from: int = 0) -> float:
     """Linear warm-up, then constant: an open-ended run that accumulates over days has no end
-    to decay towards (lower ``lr`` in the config when the curve flattens)."""
-    return config.lr * min(1.0, (step + 1) / WARMUP_STEPS)
+    to decay towards (lower ``lr`` in the config when the curve flattens). A network grown from a
+    state warms up again from the step it grew at (its optimiser moments start afresh)."""
+    return config.lr * min(1.0, (step - warmup_from + 1) / WARMUP_STEPS)
 
 
 def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
@@ -68,15 +73,15 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     net = ContactNet(architecture_of(config))
     optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     ema = copy.deepcopy(net)
-    step, images = 0, 0
+    step, images, warmup_from = 0, 0, 0
     if checkpoint_path.is_file():
         if not resume:
             raise FileExistsError(f"{checkpoint_path} exists: resume it or choose another output folder")
-        step, images = load_state(checkpoint_path, net, optimiser, config, ema)
+        step, images, warmup_from = load_state(checkpoint_path, net, optimiser, config, ema)
     (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
 
     sampling = ContactSampling(crop_probability=config.crop_probability,
-                               camera_channels=config.camera_channels)
+                               camera_channels=config.camera_channels, detection=config.detection)
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
                                  config.max_matches, config.seed)
     per_epoch = max(1, len(dataset) // config.batch_size)
@@ -96,10 +101,10 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             items = order[position * config.batch_size:(position + 1) * config.batch_size]
             batch = collate([dataset[int(i)] for i in items])
             for group in optimiser.param_groups:
-                group["lr"] = learning_rate(step, config)
+                group["lr"] = learning_rate(step, config, warmup_from)
             channels = batch["camera_channels"].flatten(0, 1) if "camera_channels" in batch else None
-            offsets, ground, camera = net(batch["image"].flatten(0, 1), channels)
-            losses = contact_loss(offsets, ground, camera, batch, loss_weights)
+            offsets, ground, camera, *detection = net(batch["image"].flatten(0, 1), channels)
+            losses = contact_loss(offsets, ground, camera, batch, loss_weights, tuple(detection) or None)
             optimiser.zero_grad(set_to_none=True)
             losses["total"].backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
@@ -108,7 +113,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             step += 1
             images += 2 * len(items)
             tick_images += 2 * len(items)
-            values = {k: float(losses[k].detach()) for k in LOSS_FIELDS[:-1]}
+            values = {k: float(losses[k].detach()) for k in LOSS_FIELDS[:-1] if k in losses}
             values["mover_rmse_cm"] = _mover_rmse_cm(losses, batch)
             for k, v in values.items():
                 if math.isfinite(v):
@@ -118,7 +123,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             bar.set_postfix(loss=f"{values['total']:.2f}", rmse_cm=f"{values['mover_rmse_cm']:.0f}")
             if step % config.log_every == 0 or step == end:
                 rate = tick_images / max(1e-9, time.time() - tick)
-                log.write({"step": step, "images": images, "lr": f"{learning_rate(step - 1, config):.3g}",
+                log.write({"step": step, "images": images, "lr": f"{learning_rate(step - 1, config, warmup_from):.3g}",
                            **{k: f"{sums.get(k, float('nan')) / max(1, counted):.5f}" for k in LOSS_FIELDS},
                            "images_per_s": f"{rate:.2f}"})
                 sums, counted, tick, tick_images = {}, 0, time.time(), 0
@@ -128,7 +133,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                              **{k: f"{v:.2f}" for k, v in scores_row(scores).items()}})
                 tick = time.time()   # evaluation time is not training throughput
             if step % config.checkpoint_every == 0 or step == end:
-                save_state(checkpoint_path, net, optimiser, step, images, config, ema)
+                save_state(checkpoint_path, net, optimiser, step, images, config, ema, warmup_from)
     finally:
         bar.close()
         log.close()
@@ -149,7 +154,8 @@ def update_average(ema: torch.nn.Module, net: torch.nn.Module, decay: float) -> 
 
 
 def save_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer, step: int,
-               images: int, config: TrainV2Config, ema: torch.nn.Module | None = None) -> None:
+               images: int, config: TrainV2Config, ema: torch.nn.Module | None = None,
+               warmup_from: int = 0) -> None:
     """Atomically write the compact state: weights and their average in float32, Adam moments in
     float16."""
     opt = optimiser.state_dict()
@@ -158,7 +164,7 @@ def save_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
                     for index, state in opt["state"].items()}
     tmp = path.with_suffix(".tmp")
     torch.save({"model": net.state_dict(), "ema": (ema or net).state_dict(), "optimiser": opt,
-                "step": step, "images": images,
+                "step": step, "images": images, "warmup_from": warmup_from,
                 "architecture": net.arch.to_dict(), "input_size": [config.input_width, config.input_height],
                 "config": dataclasses.asdict(config)}, tmp)
     tmp.replace(path)
@@ -173,19 +179,33 @@ def _compact(key: str, value: Any) -> Any:
 
 
 def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer | None,
-               config: TrainV2Config | None = None, ema: torch.nn.Module | None = None) -> tuple[int, int]:
-    """Restore a state into ``net`` (and ``optimiser``, ``ema``); a state written before the
-    average existed starts the average from its weights."""
+               config: TrainV2Config | None = None, ema: torch.nn.Module | None = None) -> tuple[int, int, int]:
+    """Restore a state into ``net`` (and ``optimiser``, ``ema``); returns step, images seen and
+    the step the learning-rate warm-up runs from. A state written before the average existed
+    starts the average from its weights. A state of a smaller network that this one grows from
+    (``ContactArchitecture.grows_from``: new parts that start as no-ops) loads its weights into
+    the shared parts; the optimiser then starts afresh and warms up again."""
     state = torch.load(path, map_location="cpu", weights_only=False)
+    held = ContactArchitecture.from_dict(state["architecture"])
+    grown = False
     if config is not None:
-        if state["architecture"] != architecture_of(config).to_dict() or \
-                state["input_size"] != [config.input_width, config.input_height]:
-            raise ValueError(f"cannot resume {path}: it holds {state['architecture']} at "
-                             f"{state['input_size']}, the config asks for {architecture_of(config).to_dict()} "
+        wanted = architecture_of(config)
+        grown = wanted.grows_from(held)
+        if (held != wanted and not grown) or state["input_size"] != [config.input_width, config.input_height]:
+            raise ValueError(f"cannot resume {path}: it holds {held.to_dict()} at "
+                             f"{state['input_size']}, the config asks for {wanted.to_dict()} "
                              f"at {[config.input_width, config.input_height]}")
-    net.load_state_dict(state["model"])
-    if ema is not None:
-        ema.load_state_dict(state.get("ema", state["model"]))
+    for module, weights in ((net, state["model"]), (ema, state.get("ema", state["model"]))):
+        if module is None:
+            continue
+        missing, unexpected = module.load_state_dict(weights, strict=not grown)
+        if unexpected or any(not key.startswith(GROWN_PARTS) for key in missing):
+            raise ValueError(f"cannot grow the network of {path}: missing {missing}, unexpected {unexpected}")
+    step, images = int(state["step"]), int(state["images"])
+    if grown:
+        print(f"grew the network of {path} at step {step}: {held.to_dict()} -> {wanted.to_dict()}; "
+              "optimiser moments start afresh")
+        return step, images, step
     if optimiser is not None:
         opt = state["optimiser"]
         for s in opt["state"].values():
@@ -194,7 +214,7 @@ def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
             if "exp_avg_sq" in s:
                 s["exp_avg_sq"] = s["exp_avg_sq"].float() ** 2
         optimiser.load_state_dict(opt)
-    return int(state["step"]), int(state["images"])
+    return step, images, int(state.get("warmup_from", 0))
 
 
 def load_network(path: Path) -> ContactNet:
@@ -216,7 +236,9 @@ def _mover_rmse_cm(losses: dict[str, torch.Tensor], batch: dict[str, torch.Tenso
 
 
 class _CsvLog:
-    """Append-only CSV whose header is taken from the first row written (or given)."""
+    """Append-only CSV whose header is taken from the first row written (or given). A file
+    written with fewer columns (a network grown since) is rewritten once with the new header,
+    its old rows left empty in the new columns."""
 
     def __init__(self, path: Path, fields: list[str] | None):
         self.path, self.fields = path, fields
@@ -224,9 +246,20 @@ class _CsvLog:
 
     def write(self, row: dict[str, Any]) -> None:
         if self.file is None:
+            fields = self.fields or list(row)
+            if self.path.is_file() and self.path.stat().st_size > 0:
+                with self.path.open(newline="") as f:
+                    old_rows = list(csv.DictReader(f))
+                    old_fields = list(old_rows[0]) if old_rows else []
+                if old_fields and old_fields != fields:
+                    fields = old_fields + [k for k in fields if k not in old_fields]
+                    with self.path.open("w", newline="") as f:
+                        writer = csv.DictWriter(f, fields)
+                        writer.writeheader()
+                        writer.writerows(old_rows)
             fresh = not self.path.is_file() or self.path.stat().st_size == 0
             self.file = self.path.open("a", newline="")
-            self.writer = csv.DictWriter(self.file, self.fields or list(row))
+            self.writer = csv.DictWriter(self.file, fields, restval="")
             if fresh:
                 self.writer.writeheader()
         self.writer.writerow(row)

@@ -11,8 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+
 from synth.camera import SynthCamera
-from synth.dataset import ObjectTruth, SequenceMeta, SynthFrame
+from synth.dataset import CLASS_NAMES, ObjectTruth, SequenceMeta, SynthFrame
 
 
 @dataclass
@@ -83,7 +84,9 @@ class FakeSequence:
 
     def frame(self, i: int) -> SynthFrame:
         rgb, height, ground, depth, instance, _ = self._render(i)
-        semantic = np.where(instance > 0, 1, 0).astype(np.uint8)
+        # Movers are pedestrians (as their ObjectTruth says), the rest road where there is ground.
+        semantic = np.where(instance > 0, CLASS_NAMES.index("pedestrian"),
+                            np.where(np.isfinite(height), CLASS_NAMES.index("road"), 0)).astype(np.uint8)
         return SynthFrame(rgb, height, ground, depth.astype(np.float32), depth.astype(np.float32),
                           instance, semantic, i / self.meta.fps)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import json
 import math
 
 import cv2
@@ -89,7 +91,7 @@ def test_training_logs_losses_and_the_held_out_curve(contact_sequences, tmp_path
     total = [float(row.split(",")[3]) for row in log[1:]]
     assert all(math.isfinite(v) for v in total)
     net = ContactNet(architecture_of(small_config(tmp_path)))
-    step, images = load_state(tmp_path / "run" / "checkpoint.pt", net, None)
+    step, images, _ = load_state(tmp_path / "run" / "checkpoint.pt", net, None)
     assert (step, images) == (4, 16)
     assert (tmp_path / "run" / "checkpoint.pt").stat().st_size < 1_000_000
 
@@ -130,9 +132,86 @@ def test_export_matches_pytorch_and_says_what_it_outputs(contact_sequences, tmp_
 
     train_contact(small_config(tmp_path / "run"), contact_sequences, progress=False, max_steps=1)
     report = export_contact(tmp_path / "run" / "checkpoint.pt", tmp_path / "v2.onnx")
-    assert max(report["offsets"], report["ground_logit"], report["camera"]) < 1e-3
+    assert max(report["offsets"], report["ground_logit"], report["camera"], report["centre_logit"],
+               report["box"]) < 1e-3
     session = ort.InferenceSession(str(tmp_path / "v2.onnx"), providers=["CPUExecutionProvider"])
     meta = session.get_modelmeta().custom_metadata_map
     assert meta["heightpipe.output_units"] == "ground_contact_offsets"
     assert meta["heightpipe.trained_images"] == "4"
-    assert [o.name for o in session.get_outputs()] == ["offsets", "ground_logit", "camera"]
+    assert [o.name for o in session.get_outputs()] == ["offsets", "ground_logit", "camera", "centre_logit", "box"]
+    assert json.loads(meta["heightpipe.outputs"])["centre_logit"]["classes"] == ["person", "cyclist", "vehicle"]
+
+
+def test_a_grown_network_starts_as_the_state_it_grew_from(contact_sequences, tmp_path):
+    """Context blocks and the detection head start as no-ops: resuming a smaller network's state
+    with them gives the same offsets, then trains on, with the warm-up restarted and the logs
+    widened."""
+    small = small_config(tmp_path / "run", context=[], detection=False)
+    before = train_contact(small, contact_sequences, contact_sequences, progress=False, max_steps=2)
+    grown_config = small_config(tmp_path / "run", context=[2, 4], detection=True)
+    net = ContactNet(architecture_of(grown_config))
+    step, images, warmup_from = load_state(tmp_path / "run" / "checkpoint.pt", net, None, grown_config)
+    assert (step, warmup_from) == (2, 2)
+    net.eval()
+    before["net"].eval()
+    x = torch.randn(1, 3, 64, 64)
+    with torch.no_grad():
+        old, new = before["net"](x)[0], net(x)[0]
+    assert torch.allclose(old, new, atol=1e-5)
+    after = train_contact(grown_config, contact_sequences, contact_sequences, resume=True, progress=False,
+                          max_steps=2)
+    assert after["step"] == 4
+    with open(tmp_path / "run" / "log.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["step"] for r in rows] == ["1", "2", "3", "4"]
+    assert rows[0]["centre"] == "nan" and rows[-1]["centre"] != "nan"
+    with open(tmp_path / "run" / "curve.csv", newline="") as f:
+        curve = list(csv.DictReader(f))
+    assert [r["step"] for r in curve] == ["2", "4"]
+    assert curve[0]["det_recall_person"] == "nan" and curve[1]["det_recall_person"] != "nan"
+    with pytest.raises(ValueError, match="cannot resume"):
+        load_state(tmp_path / "run" / "checkpoint.pt", ContactNet(architecture_of(small)), None, small)
+
+
+def test_a_log_written_with_fewer_columns_is_widened(tmp_path):
+    from heightnet.contact_train import _CsvLog
+
+    path = tmp_path / "curve.csv"
+    path.write_text("step,images\n250,2000\n")
+    log = _CsvLog(path, None)
+    log.write({"step": 500, "images": 4000, "det_precision": 0.5})
+    log.close()
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert rows == [{"step": "250", "images": "2000", "det_precision": ""},
+                    {"step": "500", "images": "4000", "det_precision": "0.5"}]
+
+
+def test_detection_targets_mark_each_mover_at_its_box_centre(contact_sequences):
+    from heightnet.contact_model import DETECTION_STRIDE
+    from stages.centre_detections import centre_detections
+
+    sampling = ContactSampling(crop_probability=0.5, detection=True)
+    dataset = ContactPairDataset(contact_sequences, 64, 48, sampling, seed=1)
+    total = 0
+    for item in range(len(dataset)):
+        sample = dataset[item]
+        for frame in range(2):
+            centre = sample["det_centre"][frame]
+            assert centre.shape == (3, 12, 16)
+            instances = np.unique(sample["instance"][frame, 0])
+            peaks = int((centre == 1).sum())
+            assert peaks <= len(instances[instances > 0])
+            total += peaks
+            assert sample["det_box_mask"][frame].sum() == peaks
+            # The targets, read as network outputs, decode to boxes around mover pixels.
+            logit = np.log(np.clip(centre, 1e-6, 1 - 1e-6) / np.clip(1 - centre, 1e-6, 1))
+            box = sample["det_box"][frame].copy()
+            box[2:] = np.exp(box[2:]) * 16.0
+            found = centre_detections(logit, box, DETECTION_STRIDE, threshold=0.99)
+            assert len(found) == peaks
+            for x0, y0, x1, y1 in found.boxes:
+                rows = slice(int(max(y0, 0)), int(np.ceil(y1)))
+                inside = sample["instance"][frame, 0, rows, int(max(x0, 0)):int(np.ceil(x1))]
+                assert (inside > 0).any()
+    assert total >= len(dataset)

@@ -1,0 +1,88 @@
+"""Training targets of the detection head: centre heatmaps and boxes from instance masks.
+
+The generator labels every mover's pixels (instance ids) and their class (semantic map). An
+object's box is the extent of its visible pixels in the training window; its target is a
+CenterNet heatmap (Zhou et al. 2019) with an elliptical Gaussian as wide and tall as the box
+(TTFNet's shape, Liu et al. 2020: a tall thin person gets a tall thin peak), and at the centre
+cell its sub-cell offset and log box size.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from heightnet.contact_model import BOX_UNIT_PX, DETECTION_CLASSES, DETECTION_STRIDE
+from synth.dataset import CLASS_NAMES
+
+# Generator classes -> detection classes; others (parked vehicles, furniture) are background.
+DETECTION_CLASS_OF = {"pedestrian": "person", "cyclist": "cyclist", "car": "vehicle", "van": "vehicle",
+                      "truck": "vehicle", "bus": "vehicle"}
+# Boxes smaller than this (input pixels, height) are not asked for: a 3-pixel person is noise.
+MIN_BOX_PX = 4.0
+# Gaussian width as a share of the box (TTFNet's alpha) and its floor in heatmap cells.
+GAUSSIAN_ALPHA = 0.54
+MIN_SIGMA_CELLS = 0.5
+
+
+@dataclass(frozen=True)
+class Box:
+    cls: int
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+
+
+def window_boxes(instance: np.ndarray, semantic: np.ndarray, scale_x: float, scale_y: float,
+                 flip: bool, width: int) -> list[Box]:
+    """Boxes of the movers in a native-resolution window, in input pixels after resize/flip."""
+    boxes = []
+    slices = ndimage.find_objects(instance.astype(np.int32))
+    for index, found in enumerate(slices, start=1):
+        if found is None:
+            continue
+        ys, xs = found
+        pixels = instance[found] == index
+        classes = np.bincount(semantic[found][pixels], minlength=len(CLASS_NAMES))
+        name = DETECTION_CLASS_OF.get(CLASS_NAMES[int(classes.argmax())])
+        if name is None:
+            continue
+        x0, x1 = xs.start * scale_x, xs.stop * scale_x
+        y0, y1 = ys.start * scale_y, ys.stop * scale_y
+        if y1 - y0 < MIN_BOX_PX:
+            continue
+        if flip:
+            x0, x1 = width - x1, width - x0
+        boxes.append(Box(DETECTION_CLASSES.index(name), x0, y0, x1, y1))
+    return boxes
+
+
+def detection_targets(boxes: list[Box], width: int, height: int) -> dict[str, np.ndarray]:
+    """``centre`` C x h x w heatmap in [0, 1], ``box`` 4 x h x w (dx, dy in input pixels from the
+    cell centre; log(w / unit), log(h / unit)) and ``box_mask`` 1 x h x w at object centres."""
+    cw, ch = width // DETECTION_STRIDE, height // DETECTION_STRIDE
+    centre = np.zeros((len(DETECTION_CLASSES), ch, cw), np.float32)
+    box = np.zeros((4, ch, cw), np.float32)
+    mask = np.zeros((1, ch, cw), np.float32)
+    gx = np.arange(cw, dtype=np.float32)
+    gy = np.arange(ch, dtype=np.float32)
+    # Big boxes first, so that where centres collide the smaller (harder) object keeps its cell.
+    for b in sorted(boxes, key=lambda b: -(b.x1 - b.x0) * (b.y1 - b.y0)):
+        cx, cy = (b.x0 + b.x1) / 2, (b.y0 + b.y1) / 2
+        i, j = int(cx // DETECTION_STRIDE), int(cy // DETECTION_STRIDE)
+        if not (0 <= i < cw and 0 <= j < ch):
+            continue
+        bw, bh = b.x1 - b.x0, b.y1 - b.y0
+        sx = max(MIN_SIGMA_CELLS, GAUSSIAN_ALPHA * bw / 6 / DETECTION_STRIDE)
+        sy = max(MIN_SIGMA_CELLS, GAUSSIAN_ALPHA * bh / 6 / DETECTION_STRIDE)
+        g = np.exp(-((gx - i) ** 2)[None, :] / (2 * sx * sx) - ((gy - j) ** 2)[:, None] / (2 * sy * sy))
+        np.maximum(centre[b.cls], g, out=centre[b.cls])
+        centre[b.cls, j, i] = 1.0
+        box[:, j, i] = (cx - (i + 0.5) * DETECTION_STRIDE, cy - (j + 0.5) * DETECTION_STRIDE,
+                        math.log(bw / BOX_UNIT_PX), math.log(bh / BOX_UNIT_PX))
+        mask[0, j, i] = 1.0
+    return {"centre": centre, "box": box, "box_mask": mask}

@@ -1,0 +1,57 @@
+"""Objects from the height network's detection head: centre-heatmap peaks become boxes.
+
+The head (heightnet/contact_model.py) predicts, at 1/``stride`` of its input, one centre
+heatmap per class and at every cell a box (offset of the centre from the cell centre, width and
+height, in input pixels). As in CenterNet (Zhou et al. 2019), a cell is an object where its
+probability is the largest of its 3x3 neighbourhood and above a threshold; that local maximum
+is the whole non-maximum suppression, so there is no box-overlap step to tune.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+
+@dataclass(frozen=True)
+class CentreDetections:
+    """Boxes in input pixels (N x 4: x0, y0, x1, y1), their class indices and scores."""
+
+    boxes: np.ndarray
+    classes: np.ndarray
+    scores: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+
+def centre_detections(centre_logit: np.ndarray, box: np.ndarray, stride: int,
+                      threshold: float | np.ndarray = 0.3, max_objects: int = 100) -> CentreDetections:
+    """Peaks of ``centre_logit`` (C x h x w) with their boxes (``box`` 4 x h x w); ``threshold``
+    is one score or one per class."""
+    prob = 1.0 / (1.0 + np.exp(-centre_logit.astype(np.float32)))
+    peaks = prob == ndimage.maximum_filter(prob, size=(1, 3, 3), mode="constant", cval=0.0)
+    limits = np.broadcast_to(np.asarray(threshold, np.float32), (prob.shape[0],))[:, None, None]
+    cls, ys, xs = np.nonzero(peaks & (prob >= limits))
+    scores = prob[cls, ys, xs]
+    keep = np.argsort(-scores, kind="stable")[:max_objects]
+    cls, ys, xs, scores = cls[keep], ys[keep], xs[keep], scores[keep]
+    dx, dy, w, h = (box[k, ys, xs] for k in range(4))
+    cx = (xs + 0.5) * stride + dx
+    cy = (ys + 0.5) * stride + dy
+    boxes = np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], 1).astype(np.float32)
+    return CentreDetections(boxes.reshape(-1, 4), cls.astype(np.int64), scores.astype(np.float32))
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection over union of every box in ``a`` (N x 4) with every box in ``b`` (M x 4)."""
+    x0 = np.maximum(a[:, None, 0], b[None, :, 0])
+    y0 = np.maximum(a[:, None, 1], b[None, :, 1])
+    x1 = np.minimum(a[:, None, 2], b[None, :, 2])
+    y1 = np.minimum(a[:, None, 3], b[None, :, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-9)
