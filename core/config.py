@@ -385,8 +385,8 @@ class TrainV2Config:
     consistency_weight: float = 1.0
     """The paper's height consistency (Eq. 2, m^2) at matched points of frames t-1, t."""
     ground_weight: float = 0.2
-    camera_weight: float = 0.1
-    """Gaussian NLL of the camera heads (pitch, roll, focal length; whole frames only)."""
+    camera_weight: float = 1.0
+    """Camera heads' Huber fit + variance NLL (pitch, roll, focal length; whole frames only)."""
     detection_weight: float = 1.0
     """Centre focal loss + box L1 of the detection head."""
 

@@ -8,7 +8,7 @@ count for more than its pixel share next to a bus of 4,000, so mover pixels are 
           + height * metric height(movers, decoded with the true camera, per object)
           + si * scale-invariant log loss (paper Eq. 1) on decoded mover heights
           + consistency * paper Eq. 2 on decoded heights at matched points of frames t-1, t
-          + ground * BCE(ground plane) + camera * Gaussian NLL of the camera heads (whole frames)
+          + ground * BCE(ground plane) + camera * (Huber fit + NLL of the variance) of the camera heads (whole frames)
           + detection * (CenterNet focal loss on centre heatmaps + L1 on centre offsets and log
             box sizes at object centres), when the network has a detection head
 """
@@ -32,6 +32,9 @@ LOG_OFFSET_M = 0.05
 # The camera heads' log-variance is kept above this so that one easy image cannot claim
 # certainty (and an infinite weight).
 MIN_LOG_VARIANCE = -12.0
+# Camera errors that count as one unit of the heads' fit loss: pitch and roll 0.05 rad (3 deg),
+# log focal length 0.1 (10 %).
+CAMERA_SCALE = (0.05, 0.05, 0.1)
 
 
 @dataclass
@@ -130,13 +133,21 @@ def consistency(height: torch.Tensor, matches: torch.Tensor, valid: torch.Tensor
 
 
 def camera_nll(camera: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """Gaussian negative log-likelihood with a predicted log-variance per camera quantity."""
+    """The camera heads' loss: Huber on each quantity's error in units of ``CAMERA_SCALE``, plus the
+    Gaussian negative log-likelihood of the predicted log-variance around the *detached* mean.
+
+    A plain Gaussian NLL lets a head answer a large error with a large variance, which scales the
+    mean's gradient by 1/variance: the first heads sat at the training cameras' mean (pitch 6 deg,
+    focal 27 %: the mean camera's own score). Decoupled, the mean learns at full strength and the
+    variance still learns to say how far off the mean is (cf. Seitzer et al., ICLR 2022)."""
     if not valid.any():
         return camera.sum() * 0.0
     n = target.shape[1]
     mean, log_var = camera[:, :n], camera[:, n:].clamp(min=MIN_LOG_VARIANCE)
-    nll = 0.5 * (torch.exp(-log_var) * (mean - target) ** 2 + log_var)
-    return nll[valid].mean()
+    scale = mean.new_tensor(CAMERA_SCALE)
+    fit = F.huber_loss(mean / scale, target / scale, reduction="none", delta=1.0)
+    nll = 0.5 * (torch.exp(-log_var) * (mean.detach() - target) ** 2 + log_var)
+    return (fit + nll)[valid].mean()
 
 
 def centre_focal(logit: torch.Tensor, target: torch.Tensor, alpha: float = 2.0, beta: float = 4.0) -> torch.Tensor:

@@ -1,0 +1,50 @@
+"""HeightNet v2 loss terms that are easy to get subtly wrong."""
+
+from __future__ import annotations
+
+import torch
+
+from heightnet.contact_losses import box_l1, camera_nll, centre_focal
+
+
+def test_camera_mean_keeps_its_gradient_when_the_head_claims_a_large_variance():
+    """With a plain Gaussian NLL a head that predicts a large variance mutes its own mean."""
+    target = torch.tensor([[0.3, 0.0, 0.2]])
+    valid = torch.tensor([True])
+    grads = []
+    for log_var in (-4.0, 4.0):
+        camera = torch.tensor([[0.0, 0.0, 0.0, log_var, log_var, log_var]], requires_grad=True)
+        camera_nll(camera, target, valid).backward()
+        grads.append(camera.grad[0, :3].clone())
+    torch.testing.assert_close(grads[0], grads[1])
+    assert grads[0][0] < 0 and grads[0][1] == 0
+
+
+def test_camera_variance_learns_the_size_of_the_error():
+    target = torch.tensor([[0.1, 0.0, 0.0]])
+    log_var = torch.zeros(1, requires_grad=True)
+    optimiser = torch.optim.SGD([log_var], lr=0.5)
+    for _ in range(200):
+        camera = torch.cat([torch.zeros(1, 3), log_var.expand(3)[None]], 1)
+        loss = camera_nll(camera, target, torch.tensor([True]))
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    # One log-variance for three errors (0.1, 0, 0): the NLL's optimum is their mean square.
+    assert abs(float(log_var.exp()) - 0.01 / 3) < 1e-3
+
+
+def test_focal_loss_is_lower_at_the_right_peak_and_box_l1_only_counts_centres():
+    target = torch.zeros(1, 1, 5, 5)
+    target[0, 0, 2, 2] = 1.0
+    right = torch.full((1, 1, 5, 5), -6.0)
+    right[0, 0, 2, 2] = 6.0
+    wrong = torch.full((1, 1, 5, 5), -6.0)
+    wrong[0, 0, 0, 4] = 6.0
+    assert centre_focal(right, target) < 0.01 < centre_focal(wrong, target)
+    mask = torch.zeros(1, 1, 5, 5)
+    mask[0, 0, 2, 2] = 1.0
+    box = torch.full((1, 4, 5, 5), 16.0)  # everywhere: centre 16 px (4 cells) off, size 16 px
+    goal = torch.zeros(1, 4, 5, 5)         # centre offset 0, log(size / 16 px) = 0
+    # Only the masked cell counts: |4| + |4| + 0 + 0 over four numbers.
+    assert abs(float(box_l1(box, goal, mask)) - 2.0) < 1e-6
