@@ -134,15 +134,16 @@ def height_camera_text(camera: HeightCamera, frames: bool = True) -> str:
     given, or the heads' estimate with their spread (``frames``: say how many frames it averages;
     the view leaves it out so its text changes only when the estimate does)."""
     where = HEIGHT_CAMERA_SOURCES.get(camera.source, camera.source)
+    pitch, roll = (f"{round(angle, 1) + 0.0:.1f}°" for angle in (camera.pitch_deg, camera.roll_deg))  # no "-0.0"
     if camera.source not in ("heads", "assumed"):
         return (f"HeightNet v2 metres with {where} (height {camera.height_m:.2f} m, pitch "
-                f"{camera.pitch_deg:.1f}°, roll {camera.roll_deg:.1f}°, focal {camera.focal_px:.0f} px)")
+                f"{pitch}, roll {roll}, focal {camera.focal_px:.0f} px)")
     focal = (f"focal {camera.focal_px:.0f} px (calibration file)" if camera.focal_given
              else f"focal {camera.focal_px:.0f} px ±{camera.focal_std_pct:.0f}%")
     estimated = "pitch, roll" if camera.focal_given else "pitch, roll, focal length"
     text = (f"HeightNet v2 metres with {where} ({camera.height_m:.2f} m) and {estimated} from the "
-            f"network's camera heads: pitch {camera.pitch_deg:.1f}° ±{camera.pitch_std_deg:.1f}°, "
-            f"roll {camera.roll_deg:.1f}° ±{camera.roll_std_deg:.1f}°, {focal}")
+            f"network's camera heads: pitch {pitch} ±{camera.pitch_std_deg:.1f}°, "
+            f"roll {roll} ±{camera.roll_std_deg:.1f}°, {focal}")
     return text + (f", mean of {camera.frames} frames" if frames else "")
 
 
