@@ -45,6 +45,39 @@ class CameraInfo:
     """Camera height above the ground plane."""
     source: str = "none"
     """Where the calibration came from: 'calibration', 'camera-height', 'self' or 'none'."""
+    pose_from: str = ""
+    """Where R and t came from: 'file' (a calibration JSON), 'config' (``[camera]`` height_m and
+    pitch_deg) or '' (no pose, or made in code). The run has one camera either way; this only
+    lets outputs say which of the user's inputs it was."""
+    lens_from_file: bool = False
+    """K came from a calibration file; False: from ``camera.fov_deg``, an assumption."""
+
+
+@dataclass
+class HeightCamera:
+    """The camera the height stage turned a HeightNet v2 network's ground-contact offsets into
+    metres with, and where it came from (shown in the run summary and the rerun view).
+
+    ``source``: 'calibration' (a calibration file's pose), 'config' (a pose in ``[camera]``),
+    'self' (that pose from ``heightpipe calibrate``), 'heads' (the camera height given, pitch,
+    roll and focal length from the network's camera heads) or 'assumed' (the heads with an
+    assumed camera height: ``heightpipe calibrate`` only). The standard deviations are the
+    heads' own (0 for a given camera).
+    """
+
+    source: str
+    height_m: float
+    pitch_deg: float
+    roll_deg: float
+    focal_px: float
+    """Vertical focal length in source-frame pixels."""
+    pitch_std_deg: float = 0.0
+    roll_std_deg: float = 0.0
+    focal_std_pct: float = 0.0
+    frames: int = 0
+    """Frames the heads' outputs were averaged over (0 for a given camera)."""
+    focal_given: bool = False
+    """Heads path only: the focal length is a calibration file's, not the heads'."""
 
 
 @dataclass
@@ -154,5 +187,8 @@ class FramePacket:
     tracks: list[Track] = field(default_factory=list)
     events: list = field(default_factory=list)
     """Height-rule firings this frame (``stages.height_rules.RuleEvent``)."""
+    height_camera: HeightCamera | None = None
+    """The camera the height map was decoded with (HeightNet v2 models; None for v1 models,
+    whose heights need only ``camera.height_m``)."""
     timings_ms: dict[str, float] = field(default_factory=dict)
     """Per-stage wall time for this frame (for the summary and the benchmark)."""

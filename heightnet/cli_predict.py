@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import sys
 from pathlib import Path
 
 
@@ -11,17 +13,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--camera-height", type=float, default=0.0, metavar="M",
                         help="camera height above the ground in metres (default: camera.height_m)")
+    parser.add_argument("--calibration", metavar="JSON", default="",
+                        help="calibration JSON, as for `heightpipe run` (default: camera.calibration)")
     parser.add_argument("--model", default="", help="ONNX model (default: height.model or the shipped one)")
     parser.add_argument("--every", type=int, default=1, metavar="N", help="every Nth frame of a video")
 
 
 def main(args: argparse.Namespace, config) -> int:
     from heightnet.predict import HeightPredictor, model_path_from_config, predict_to_folder
+    from stages.sink_common import height_camera_text
 
     model = model_path_from_config(args.model or config.height.model)
     predictor = HeightPredictor(model, config.height.threads)
-    camera_height = args.camera_height or config.camera.height_m
-    written = predict_to_folder(Path(args.source), Path(args.out), predictor, camera_height,
-                                max(1, args.every))
+    camera = dataclasses.replace(config.camera, height_m=args.camera_height or config.camera.height_m,
+                                 calibration=args.calibration or config.camera.calibration)
+    written = predict_to_folder(Path(args.source), Path(args.out), predictor, every=max(1, args.every),
+                                camera_config=camera)
     print(f"wrote {len(written)} height maps (uint16 PNG, mm) and colour views to {args.out}")
+    if predictor.height_camera is not None:
+        print(f"heightpipe: {height_camera_text(predictor.height_camera)}", file=sys.stderr)
     return 0

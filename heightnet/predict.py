@@ -3,6 +3,10 @@
 ``HeightPredictor`` follows the run-time contract (``stages/heightnet_model.py``): resize
 any frame to the model's input with INTER_AREA, normalise, run, resize both outputs back
 bilinearly, and turn ``camera_height_fraction`` outputs into metres with the camera height.
+A ground-contact (v2) model's offsets become metres with the camera as the run takes it
+(``stages/contact_heights.py``: a calibration file's or ``[camera]``'s pose, else the camera
+height and the network's camera heads); the inputs of one command are taken to be one camera's,
+as its ``--camera-height`` and ``--calibration`` are, so the heads are averaged over them.
 """
 
 from __future__ import annotations
@@ -14,7 +18,9 @@ from typing import Iterator
 import cv2
 import numpy as np
 
+from core.config import CameraConfig
 from core.errors import ConfigError, ModelError, SourceError
+from core.packets import CameraInfo, HeightCamera
 from heightnet.normalisation import normalise
 from stages.heightnet_model import SHIPPED_MODEL
 
@@ -28,6 +34,8 @@ class HeightPrediction:
     """float32 H x W, height above ground in metres (frame resolution)."""
     ground_probability: np.ndarray
     """float32 H x W in [0, 1]."""
+    camera: HeightCamera | None = None
+    """The camera a v2 model's heights were decoded with (None: a v1 model)."""
 
 
 def model_path_from_config(configured: str) -> Path:
@@ -46,9 +54,15 @@ class HeightPredictor:
     """
 
     def __init__(self, model_path: str | Path, threads: int = 2):
+        from stages.contact_heights import ContactHeights
         from stages.heightnet_model import HeightNetModel
 
         model = HeightNetModel(model_path, threads)
+        self.model = model
+        self.contact = ContactHeights() if model.info.contact else None
+        """v2 models: the decoder, with the camera heads' running mean over this predictor's inputs."""
+        self.height_camera: HeightCamera | None = None
+        """The camera of the last v2 prediction (what ``heightpipe predict`` reports)."""
         self.session = model.session
         self.input_name = model.input_name
         self.width, self.height = model.info.input_width, model.info.input_height
@@ -60,8 +74,18 @@ class HeightPredictor:
     def needs_camera_height(self) -> bool:
         return self.units == "camera_height_fraction"
 
-    def predict(self, rgb: np.ndarray, camera_height_m: float = 0.0) -> HeightPrediction:
-        """``rgb``: uint8 H x W x 3 in RGB order."""
+    def predict(self, rgb: np.ndarray, camera_height_m: float = 0.0,
+                camera: CameraInfo | None = None) -> HeightPrediction:
+        """``rgb``: uint8 H x W x 3 in RGB order; ``camera``: this image's camera
+        (``stages.calibration.camera_for_run``), else ``camera_height_m`` is all that is known.
+        v1 models use only the camera height."""
+        if camera is None:
+            h, w = rgb.shape[:2]
+            camera = CameraInfo(w, h, height_m=camera_height_m if camera_height_m > 0 else None,
+                                source="camera-height" if camera_height_m > 0 else "none")
+        if self.contact is not None:
+            return self._predict_contact(rgb, camera)
+        camera_height_m = camera.height_m if camera.source != "none" and camera.height_m else 0.0
         if self.needs_camera_height and camera_height_m <= 0:
             raise ConfigError("this height model predicts height relative to the camera height: "
                               "give --camera-height (or camera.height_m)")
@@ -75,6 +99,12 @@ class HeightPredictor:
             height = height * camera_height_m
         ground = 1.0 / (1.0 + np.exp(-np.clip(ground_logit, -30, 30)))
         return HeightPrediction(height.astype(np.float32), ground.astype(np.float32))
+
+    def _predict_contact(self, rgb: np.ndarray, camera: CameraInfo) -> HeightPrediction:
+        h, w = rgb.shape[:2]
+        output = self.model.run(np.ascontiguousarray(rgb[:, :, ::-1]))  # run() takes BGR, as frames are
+        height, self.height_camera = self.contact.decode(output, camera, (w, h))
+        return HeightPrediction(height, output.ground_probability, self.height_camera)
 
 
 def height_to_png16(height_m: np.ndarray) -> np.ndarray:
@@ -130,12 +160,24 @@ def _read_image(path: Path) -> np.ndarray:
 
 
 def predict_to_folder(source: Path, out_dir: Path, predictor: HeightPredictor,
-                      camera_height_m: float, every: int = 1) -> list[Path]:
-    """Writes <stem>.png (uint16 mm) and <stem>_color.jpg for each input; returns the PNG paths."""
+                      camera_height_m: float = 0.0, every: int = 1,
+                      camera_config: CameraConfig | None = None) -> list[Path]:
+    """Writes <stem>.png (uint16 mm) and <stem>_color.jpg for each input; returns the PNG paths.
+
+    ``camera_config`` (``[camera]`` with the command's flags applied) gives each input's camera
+    as ``heightpipe run`` builds it; without it, ``camera_height_m`` is all that is known.
+    """
+    from stages.calibration import camera_for_run
+
+    config = camera_config or CameraConfig(height_m=camera_height_m)
+    cameras: dict[tuple[int, int], CameraInfo] = {}  # images of a folder may differ in size
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for stem, rgb in iter_inputs(source, every):
-        prediction = predictor.predict(rgb, camera_height_m)
+        size = (rgb.shape[1], rgb.shape[0])
+        if size not in cameras:
+            cameras[size] = camera_for_run(config, *size)
+        prediction = predictor.predict(rgb, camera=cameras[size])
         png = out_dir / f"{stem}.png"
         cv2.imwrite(str(png), height_to_png16(prediction.height_m))
         cv2.imwrite(str(out_dir / f"{stem}_color.jpg"), colourise(rgb, prediction.height_m))

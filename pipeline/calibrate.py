@@ -61,8 +61,9 @@ def main(args: argparse.Namespace, config) -> int:
         camera = camera_for_run(intrinsics_config, width, height)
         # A calibration file's pose is dropped too; the network's scale-free heights are taken
         # at an assumed camera height: they only tell what stands above the ground.
-        camera = dataclasses.replace(camera, R=None, t=None, height_m=ASSUMED_CAMERA_HEIGHT_M, source="none")
-        chain = build_stage_chain(config, camera)
+        camera = dataclasses.replace(camera, R=None, t=None, height_m=ASSUMED_CAMERA_HEIGHT_M, source="none",
+                                     pose_from="")
+        chain = build_stage_chain(config, camera, assumed_camera_ok=True)
     except HeightpipeError:
         source.close()
         raise

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from core.config import Config
-from core.packets import CameraInfo
+from core.packets import CameraInfo, HeightCamera
 from core.stage import Sink
 from pipeline.stage_chain import build_stage_chain, close_all
 from stages.capture import CaptureStats, FrameSource, StreamSource, open_source
@@ -56,6 +56,8 @@ class RunSummary:
     """Frames of a live source dropped because the pipeline was busy (overlapped runs only)."""
     overlapped: bool = False
     camera_source: str = "none"
+    height_camera: HeightCamera | None = None
+    """The camera a v2 network's heights were decoded with at the last frame (None: a v1 model)."""
     outputs: RunOutputs | None = None
 
     @property
@@ -239,6 +241,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
                     for name, ms in packet.timings_ms.items():
                         summary.stage_ms[name] += ms
                     summary.events += len(packet.events)
+                    summary.height_camera = packet.height_camera or summary.height_camera
                 progress.update(1)
                 progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
                 if on_frame is not None:

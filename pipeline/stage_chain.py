@@ -61,7 +61,7 @@ class StageChain:
 
 
 def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None = None,
-                      geometry: bool = True) -> StageChain:
+                      geometry: bool = True, assumed_camera_ok: bool = False) -> StageChain:
     """The stages for this camera and configuration.
 
     Parameters
@@ -75,6 +75,10 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
         true maps); by default the shipped network fills both.
     geometry : bool
         Fuse the calibrated-camera geometry height where the camera allows it.
+    assumed_camera_ok : bool
+        A ground-contact (v2) model may decode with the assumed camera height of a camera with
+        no height given (``heightpipe calibrate``, which needs only what stands above the
+        ground); otherwise such a model without a camera is a ConfigError.
     """
     from stages.calibration import has_distortion, is_calibrated
     from stages.feature_matching import FeatureMatcher
@@ -88,7 +92,8 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
         from stages.heightnet_model import HeightNetModel
 
         model = HeightNetModel(config.height.model, config.height.threads)
-        height_stages = [("ground", GroundSegmenter(config.ground, model)), ("height", HeightEstimator(model))]
+        height_stages = [("ground", GroundSegmenter(config.ground, model)),
+                         ("height", HeightEstimator(model, camera, assumed_camera_ok))]
     else:
         height_stages = [("heights", heights)]
     if has_distortion(camera):

@@ -8,7 +8,7 @@ from collections import defaultdict
 
 from pipeline.runner import RunSummary
 from stages.objects_table import ObjectRow
-from stages.sink_common import CAMERA_STATES
+from stages.sink_common import camera_state_text
 
 
 def _size(path) -> str:
@@ -47,7 +47,7 @@ def format_summary(summary: RunSummary) -> str:
     lines.append(f"  capture: {summary.capture.summary()}")
     if summary.dropped_frames:
         lines.append(f"  live source: {summary.dropped_frames} frames dropped while the pipeline was busy")
-    lines.append(f"  camera: {CAMERA_STATES.get(summary.camera_source, summary.camera_source)}")
+    lines.append(f"  camera: {camera_state_text(summary.camera_source, summary.height_camera)}")
     lines.append(f"  tracks: {tracks_line(summary.objects.sorted_rows())}")
     if summary.events or summary.webhook:
         lines.append(f"  events: {summary.events} height-rule firings"

@@ -196,9 +196,11 @@ def load_calibration(path: str | Path) -> CameraInfo:
         if not np.any(dist):
             dist = None
     pose = _pose(data, where)
-    camera = CameraInfo(width=width, height=height, K=K, dist=dist, source="calibration")
+    camera = CameraInfo(width=width, height=height, K=K, dist=dist, source="calibration",
+                        lens_from_file=True)
     if pose is not None:
         camera.R, camera.t = pose
+        camera.pose_from = "file"
         camera.height_m = float(camera_centre(camera)[2])
         if camera.height_m <= 0:
             raise ConfigError(f"{where}: the camera centre is not above the ground plane z = 0 "
@@ -252,13 +254,14 @@ def camera_for_run(config: CameraConfig, width: int, height: int) -> CameraInfo:
             raise ConfigError(f"camera.pitch_deg must be between 0 and 90 (looking down), "
                               f"got {config.pitch_deg}")
         source = "self" if config.self_calibrated else "calibration"
-        return camera_from_pose(width, height, K, config.height_m, config.pitch_deg,
-                                config.roll_deg, dist=dist, source=source)
+        camera = camera_from_pose(width, height, K, config.height_m, config.pitch_deg,
+                                  config.roll_deg, dist=dist, source=source)
+        return dataclasses.replace(camera, pose_from="config", lens_from_file=bool(config.calibration))
     if config.height_m > 0:
         return CameraInfo(width=width, height=height, K=K, dist=dist, height_m=config.height_m,
-                          source="camera-height")
+                          source="camera-height", lens_from_file=bool(config.calibration))
     return CameraInfo(width=width, height=height, K=K, dist=dist, height_m=ASSUMED_CAMERA_HEIGHT_M,
-                      source="none")
+                      source="none", lens_from_file=bool(config.calibration))
 
 
 # --------------------------------------------------------------------------- projection

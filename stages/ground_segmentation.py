@@ -21,6 +21,11 @@ class GroundSegmenter:
     def __init__(self, config: GroundConfig, model: HeightNetModel):
         if config.method not in METHODS:
             raise ConfigError(f"ground.method must be one of {METHODS}, got {config.method!r}")
+        if config.method == "height" and model.info.contact:
+            # v2 heights exist only after the height stage has chosen the camera, and every v2
+            # export trains its ground head (heightnet/contact_losses.py): 'height' has no use.
+            raise ConfigError("ground.method = 'height' is for v1 height models; a ground-contact "
+                              "(HeightNet v2) model needs ground.method = 'model'")
         self.config = config
         self.model = model
 

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from core.packets import FramePacket
+from core.packets import CameraInfo, FramePacket
+from stages.contact_heights import ContactHeights, camera_source
 from stages.heightnet_model import HeightNetModel
 
 
@@ -11,14 +12,28 @@ class HeightEstimator:
 
     Zeroing the ground keeps the two heads consistent: a pixel the ground stage calls ground
     has no height, so downstream object extraction never sees a raised patch of road.
+
+    A v1 network's heights need only the camera height; a v2 network's ground-contact offsets
+    need the whole camera (``stages/contact_heights.py``), and the packet then says which one
+    was used (``packet.height_camera``). ``camera`` (the run's) lets a v2 model without any
+    camera fail when the stage is built, not at the first frame; ``assumed_camera_ok`` lets it
+    decode with an assumed camera height (``heightpipe calibrate``).
     """
 
-    def __init__(self, model: HeightNetModel):
+    def __init__(self, model: HeightNetModel, camera: CameraInfo | None = None,
+                 assumed_camera_ok: bool = False):
         self.model = model
+        self.contact = ContactHeights(assumed_camera_ok) if model.info.contact else None
+        if self.contact is not None and camera is not None:
+            camera_source(camera, assumed_camera_ok)
 
     def process(self, packet: FramePacket) -> FramePacket:
         output = self.model.infer(packet.frame)
-        height = self.model.to_metres(output.height, packet.camera)
+        if self.contact is not None:
+            h, w = packet.frame.image.shape[:2]
+            height, packet.height_camera = self.contact.decode(output, packet.camera, (w, h))
+        else:
+            height = self.model.to_metres(output.height, packet.camera)
         if packet.ground_mask is not None:
             height = height.copy()
             height[packet.ground_mask] = 0.0

@@ -4,6 +4,12 @@ One network has two heads (height and ground), and two stages read them, so both
 same ``HeightNetModel`` and it caches its result for the frame being processed: the
 network runs once per frame. Everything about the model's input and output (size,
 normalisation, units) is read from metadata stored in the ONNX file, never hard-coded.
+
+Two generations of network: v1 (``heightpipe.output_units`` "metres" or
+"camera_height_fraction") outputs ``height``; v2 ("ground_contact_offsets",
+heightnet/contact_export.py) outputs ``offsets`` and ``camera`` instead, which become metres only
+with a camera (``stages/contact_heights.py``). Outputs are read by name and any other output is
+left alone, so a network that gains heads (a detector's ``centre_logit``, ``box``) still loads.
 """
 
 from __future__ import annotations
@@ -21,7 +27,11 @@ from core.packets import CameraInfo, Frame
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
 SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
 """The shipped model quantised to INT8 (heightnet/quantize.py): ``height.model = "int8"``."""
-OUTPUT_UNITS = ("metres", "camera_height_fraction")
+CONTACT_UNITS = "ground_contact_offsets"
+"""HeightNet v2's units (heightnet/contact_export.py writes them)."""
+OUTPUT_UNITS = ("metres", "camera_height_fraction", CONTACT_UNITS)
+CAMERA_HEAD_SIZE = 6
+"""v2's ``camera`` output: pitch, roll, log focal length in image heights, their log-variances."""
 
 
 @dataclass
@@ -36,13 +46,24 @@ class ModelInfo:
     architecture: str
     color_order: str = "RGB"
 
+    @property
+    def contact(self) -> bool:
+        """A HeightNet v2 network: ground-contact offsets and camera heads, no height output."""
+        return self.output_units == CONTACT_UNITS
+
 
 @dataclass
 class ModelOutput:
-    """Network outputs resized to the frame: raw height (model units) and ground probability."""
+    """Network outputs. The ground probability is resized to the frame, and so is v1's height
+    (model units); v2's offsets stay at the input size, in input pixels, because the closed form
+    that makes them metres works on the camera of the image they were predicted on."""
 
-    height: np.ndarray
+    height: np.ndarray | None
     ground_probability: np.ndarray
+    offsets: np.ndarray | None = None
+    """v2: input H x W x 2 (du, dv) to each pixel's ground-contact point, input pixels."""
+    camera: np.ndarray | None = None
+    """v2: the camera heads' 6 numbers (``CAMERA_HEAD_SIZE``)."""
 
 
 def _read_info(path: Path, meta: dict[str, str]) -> ModelInfo:
@@ -100,12 +121,18 @@ class HeightNetModel:
                              f"the expected {expected} (1 x RGB x height x width from metadata)")
         self.input_name = inputs[0].name
         outputs = {o.name: o.shape for o in self.session.get_outputs()}
-        for name in ("height", "ground_logit"):
+        h, w = self.info.input_height, self.info.input_width
+        if self.info.contact:
+            expected_outputs = {"offsets": [1, 2, h, w], "ground_logit": [1, 1, h, w],
+                                "camera": [1, CAMERA_HEAD_SIZE]}
+        else:
+            expected_outputs = {"height": [1, 1, h, w], "ground_logit": [1, 1, h, w]}
+        for name, shape in expected_outputs.items():
             if name not in outputs:
                 raise ModelError(f"{self.path}: missing output {name!r} (has {sorted(outputs)})")
-            if list(outputs[name]) != [1, 1, self.info.input_height, self.info.input_width]:
-                raise ModelError(f"{self.path}: output {name!r} has shape {outputs[name]}, expected "
-                                 f"[1, 1, {self.info.input_height}, {self.info.input_width}]")
+            if list(outputs[name]) != shape:
+                raise ModelError(f"{self.path}: output {name!r} has shape {outputs[name]}, expected {shape}")
+        self.output_names = list(expected_outputs)
 
     def preprocess(self, image_bgr: np.ndarray) -> np.ndarray:
         small = cv2.resize(image_bgr, (self.info.input_width, self.info.input_height),
@@ -119,18 +146,28 @@ class HeightNetModel:
         """Run the network on a frame (once: repeated calls for one frame hit the cache)."""
         if self._cached_index == frame.index and self._cached is not None:
             return self._cached
-        height, ground_logit = self.session.run(["height", "ground_logit"],
-                                                {self.input_name: self.preprocess(frame.image)})
-        h, w = frame.image.shape[:2]
-        height_full = cv2.resize(height[0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
-        logit_full = cv2.resize(ground_logit[0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
-        probability = 1.0 / (1.0 + np.exp(-np.clip(logit_full, -30, 30)))
+        self._cached = self.run(frame.image)
         self._cached_index = frame.index
-        self._cached = ModelOutput(np.maximum(height_full, 0.0), probability.astype(np.float32))
         return self._cached
 
+    def run(self, image_bgr: np.ndarray) -> ModelOutput:
+        """The network on one image (no cache); outputs as ``ModelOutput`` describes."""
+        named = dict(zip(self.output_names, self.session.run(self.output_names,
+                                                              {self.input_name: self.preprocess(image_bgr)})))
+        h, w = image_bgr.shape[:2]
+        logit_full = cv2.resize(named["ground_logit"][0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
+        probability = (1.0 / (1.0 + np.exp(-np.clip(logit_full, -30, 30)))).astype(np.float32)
+        if self.info.contact:
+            return ModelOutput(None, probability, offsets=named["offsets"][0].transpose(1, 2, 0),
+                               camera=named["camera"][0])
+        height_full = cv2.resize(named["height"][0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
+        return ModelOutput(np.maximum(height_full, 0.0), probability)
+
     def to_metres(self, height: np.ndarray, camera: CameraInfo) -> np.ndarray:
-        """Model units to metres: scale-free outputs are multiplied by the camera height."""
+        """v1 model units to metres: scale-free outputs are multiplied by the camera height
+        (v2 offsets need the whole camera: ``stages.contact_heights``)."""
+        if self.info.contact:
+            raise ModelError(f"{self.path}: a ground-contact-offset model has no height output to scale")
         if self.info.output_units == "metres":
             return height
         return height * np.float32(camera.height_m)

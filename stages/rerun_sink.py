@@ -15,7 +15,8 @@ same recording. Entities:
     /tracks/<id>/height one height time series per confirmed track; cleared while it coasts
     /capture/damage     a warning TextLog on each frame decoded with errors
     /events             height-rule firings as a text log
-    /status             the camera's calibration state (what the heights can be trusted for)
+    /status             the camera's calibration state (what the heights can be trusted for; with a
+                        v2 network, the camera its heights were decoded with and the heads' spread)
 
 Timelines: ``frame`` (source frame index) and ``time`` (source time, a duration).
 """
@@ -34,9 +35,9 @@ import rerun.blueprint as rrb
 
 from core.config import OutputConfig
 from core.errors import ConfigError, HeightpipeError
-from core.packets import OBJECT_CLASSES, FramePacket, Track
-from stages.sink_common import (BACKGROUND_MATCH_RGB, CAMERA_STATES, CLASS_COLORS_RGB, DAMAGE_TOPIC,
-                                OBJECT_MATCH_RGB, FrameEncoder, check_output_config, class_id,
+from core.packets import OBJECT_CLASSES, FramePacket, HeightCamera, Track
+from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC, OBJECT_MATCH_RGB,
+                                FrameEncoder, camera_state_text, check_output_config, class_id,
                                 confirmed, damage_text, height_text, quality_rgb, track_label)
 
 APPLICATION_ID = "heightpipe"
@@ -143,12 +144,14 @@ class RerunFrameLogger:
                                             resolution=[width, height]))
             self._camera_key = key
 
-    def log_camera_state(self, source: str) -> None:
-        """Writes what the camera's calibration state means for the heights, when it changes."""
-        if source != self._camera_state:
-            state = CAMERA_STATES.get(source, source)
+    def log_camera_state(self, source: str, height_camera: HeightCamera | None = None) -> None:
+        """Writes what the camera's calibration state means for the heights, when it changes
+        (with a v2 network: the camera its heights were decoded with, and the camera heads'
+        uncertainty where they supplied it)."""
+        state = camera_state_text(source, height_camera, frames=False)
+        if state != self._camera_state:
             self._log("/status", rr.TextDocument(f"**Camera:** {state}", media_type="text/markdown"))
-            self._camera_state = source
+            self._camera_state = state
 
     def log_ground_mask(self, mask: np.ndarray) -> None:
         """``mask``: H x W, nonzero = ground, in frame pixels (only with ``ground_overlay``)."""
@@ -281,7 +284,7 @@ class RerunSink:
         log.begin_frame(packet.frame.index, packet.frame.time_s)
         log.log_image(self.encoder.jpeg(packet))
         camera = packet.camera
-        log.log_camera_state(camera.source)
+        log.log_camera_state(camera.source, packet.height_camera)
         if camera.K is not None:
             log.log_camera(camera.K, camera.width, camera.height)
         if not self.encoder.maps_due(packet):

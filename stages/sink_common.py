@@ -11,7 +11,7 @@ import numpy as np
 
 from core.config import OutputConfig
 from core.errors import ConfigError
-from core.packets import OBJECT_CLASSES, Frame, FramePacket, Track
+from core.packets import OBJECT_CLASSES, Frame, FramePacket, HeightCamera, Track
 
 CLASS_COLORS_RGB = {"other": (200, 200, 200), "person": (255, 80, 80),
                     "cyclist": (255, 200, 0), "vehicle": (80, 160, 255)}
@@ -119,6 +119,39 @@ CAMERA_STATES = {
             "heights are indicative only",
 }
 """What each ``CameraInfo.source`` means for the heights, in the summary and the view."""
+HEIGHT_CAMERA_SOURCES = {
+    "calibration": "the calibration file's camera",
+    "config": "the [camera] pose",
+    "self": "the self-calibrated [camera] pose",
+    "heads": "the camera height given",
+    "assumed": "an assumed camera height",
+}
+"""Where a v2 network's decoding camera came from (``HeightCamera.source``)."""
+
+
+def height_camera_text(camera: HeightCamera, frames: bool = True) -> str:
+    """How a v2 network's heights were made metric, for the summary and the view: the camera
+    given, or the heads' estimate with their spread (``frames``: say how many frames it averages;
+    the view leaves it out so its text changes only when the estimate does)."""
+    where = HEIGHT_CAMERA_SOURCES.get(camera.source, camera.source)
+    pitch, roll = (f"{round(angle, 1) + 0.0:.1f}°" for angle in (camera.pitch_deg, camera.roll_deg))  # no "-0.0"
+    if camera.source not in ("heads", "assumed"):
+        return (f"HeightNet v2 metres with {where} (height {camera.height_m:.2f} m, pitch "
+                f"{pitch}, roll {roll}, focal {camera.focal_px:.0f} px)")
+    focal = (f"focal {camera.focal_px:.0f} px (calibration file)" if camera.focal_given
+             else f"focal {camera.focal_px:.0f} px ±{camera.focal_std_pct:.0f}%")
+    estimated = "pitch, roll" if camera.focal_given else "pitch, roll, focal length"
+    text = (f"HeightNet v2 metres with {where} ({camera.height_m:.2f} m) and {estimated} from the "
+            f"network's camera heads: pitch {pitch} ±{camera.pitch_std_deg:.1f}°, "
+            f"roll {roll} ±{camera.roll_std_deg:.1f}°, {focal}")
+    return text + (f", mean of {camera.frames} frames" if frames else "")
+
+
+def camera_state_text(source: str, height_camera: HeightCamera | None = None, frames: bool = True) -> str:
+    """The camera line of the summary and the view: the run camera's state, and for a v2 network
+    the camera its heights were decoded with."""
+    state = CAMERA_STATES.get(source, source)
+    return state if height_camera is None else f"{state}; {height_camera_text(height_camera, frames)}"
 
 
 def height_quality(track: Track) -> str:

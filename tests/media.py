@@ -142,3 +142,58 @@ def default_sigint() -> None:
     worker must), so without this the SIGINT tests fail whenever the suite itself runs in the
     background."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def make_tiny_contact_model(path: Path, offsets: np.ndarray, camera: np.ndarray,
+                            camera_slope: np.ndarray | None = None, extra_outputs: bool = True) -> Path:
+    """A HeightNet v2-shaped ONNX model (ground-contact offsets) with outputs chosen by the test.
+
+    ``offsets`` (H x W x 2, input pixels) come out as they are, whatever the image; the camera
+    heads give ``camera + camera_slope * mean(normalised image)`` (6 numbers), so frames of
+    different brightness read differently; the ground is dark pixels, as the v1 tiny model's.
+    ``extra_outputs`` adds a detector's ``centre_logit`` and ``box``, which the run time must
+    ignore. Not a trained network: it proves the wiring without torch.
+    """
+    import onnx
+    from onnx import TensorProto, helper
+
+    height, width = offsets.shape[:2]
+    offsets_nchw = np.ascontiguousarray(offsets.transpose(2, 0, 1)[None], np.float32)
+    slope = np.zeros(6, np.float32) if camera_slope is None else np.asarray(camera_slope, np.float32)
+    constants = {"offsets_value": offsets_nchw, "w_ground": np.full((1, 3, 1, 1), -2.0, np.float32),
+                 "b_ground": np.array([1.0], np.float32),
+                 "camera_bias": np.asarray(camera, np.float32).reshape(1, 6), "camera_slope": slope.reshape(1, 6),
+                 "centre_value": np.zeros((1, 1, height, width), np.float32),
+                 "box_value": np.ones((1, 4, height, width), np.float32)}
+    nodes = [
+        helper.make_node("Identity", ["offsets_value"], ["offsets"]),
+        helper.make_node("Conv", ["image", "w_ground", "b_ground"], ["ground_logit"]),
+        helper.make_node("ReduceMean", ["image"], ["brightness"], axes=[1, 2, 3], keepdims=0),
+        helper.make_node("Unsqueeze", ["brightness", "one_axis"], ["brightness_2d"]),
+        helper.make_node("Mul", ["brightness_2d", "camera_slope"], ["camera_varying"]),
+        helper.make_node("Add", ["camera_varying", "camera_bias"], ["camera"]),
+    ]
+    outputs = [helper.make_tensor_value_info("offsets", TensorProto.FLOAT, [1, 2, height, width]),
+               helper.make_tensor_value_info("ground_logit", TensorProto.FLOAT, [1, 1, height, width]),
+               helper.make_tensor_value_info("camera", TensorProto.FLOAT, [1, 6])]
+    if extra_outputs:
+        nodes += [helper.make_node("Identity", ["centre_value"], ["centre_logit"]),
+                  helper.make_node("Identity", ["box_value"], ["box"])]
+        outputs = [helper.make_tensor_value_info("centre_logit", TensorProto.FLOAT, [1, 1, height, width]),
+                   *outputs, helper.make_tensor_value_info("box", TensorProto.FLOAT, [1, 4, height, width])]
+    initializers = [helper.make_tensor(name, TensorProto.FLOAT, value.shape, value.ravel())
+                    for name, value in constants.items()]
+    initializers.append(helper.make_tensor("one_axis", TensorProto.INT64, [1], [0]))
+    graph = helper.make_graph(
+        nodes, "tiny_contact_net",
+        [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, height, width])],
+        outputs, initializer=initializers)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    meta = {"heightpipe.format_version": "2", "heightpipe.input_width": str(width),
+            "heightpipe.input_height": str(height), "heightpipe.mean": json.dumps([0.5, 0.5, 0.5]),
+            "heightpipe.std": json.dumps([0.5, 0.5, 0.5]), "heightpipe.color_order": "RGB",
+            "heightpipe.output_units": "ground_contact_offsets", "heightpipe.architecture": "tiny-test"}
+    helper.set_model_props(model, meta)
+    onnx.save(model, str(path))
+    return path

@@ -241,3 +241,28 @@ def test_kill_9_leaves_mcap_recoverable_to_the_last_second(tmp_path, model_flag)
 ])
 def test_negative_limits_are_rejected(box_video, model_flag, flag, message):
     assert_clean_error(heightpipe("run", box_video, *flag, *model_flag), message)
+
+
+@pytest.fixture
+def contact_model(tmp_path):
+    """A HeightNet v2-shaped model: every pixel's contact point 3 input pixels below it."""
+    import numpy as np
+
+    from media import make_tiny_contact_model
+
+    offsets = np.zeros((48, 64, 2), np.float32)
+    offsets[..., 1] = 3.0
+    return make_tiny_contact_model(tmp_path / "v2.onnx", offsets, [0.4, 0.0, 0.2, -4.0, -4.0, -4.0])
+
+
+def test_a_v2_model_without_a_camera_is_one_line_naming_the_flags(box_video, contact_model):
+    result = heightpipe("run", box_video, "--rerun", "off", "--set", f'height.model="{contact_model}"')
+    assert_clean_error(result, "give --calibration FILE, or --camera-height M")
+
+
+def test_a_v2_model_with_the_camera_height_says_the_heads_gave_the_rest(tmp_path, box_video, contact_model):
+    result = heightpipe("run", box_video, "--out", tmp_path / "v2", "--no-progress", "--rerun", "off",
+                        "--camera-height", "5", "--max-frames", "5", "--set", f'height.model="{contact_model}"')
+    assert result.returncode == 0, result.stderr
+    camera_line = next(line for line in result.stderr.splitlines() if line.startswith("  camera:"))
+    assert "camera heads: pitch 22.9° ±7.8°" in camera_line and "mean of 5 frames" in camera_line

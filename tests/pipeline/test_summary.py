@@ -22,3 +22,19 @@ def test_summary_says_when_a_run_was_stopped():
     text = format_summary(summary)
     assert "stopped by SIGTERM: the outputs hold the 4 frames processed" in text
     assert "tracks: none confirmed" in text
+
+
+def test_summary_says_which_camera_a_v2_network_decoded_with():
+    from core.packets import HeightCamera
+
+    heads = HeightCamera("heads", 6.0, 18.24, 0.31, 512.0, pitch_std_deg=1.12, roll_std_deg=0.5,
+                         focal_std_pct=6.2, frames=120)
+    text = format_summary(RunSummary(source="cam", frames=120, wall_s=1.0, camera_source="camera-height",
+                                     height_camera=heads))
+    camera_line = next(line for line in text.splitlines() if line.startswith("  camera:"))
+    assert "camera height given" in camera_line and "camera heads" in camera_line
+    assert "pitch 18.2° ±1.1°" in camera_line and "focal 512 px ±6%" in camera_line
+    assert "mean of 120 frames" in camera_line
+    given = HeightCamera("calibration", 7.84, 23.5, 0.4, 1800.0)
+    text = format_summary(RunSummary(source="cam", camera_source="calibration", height_camera=given))
+    assert "with the calibration file's camera (height 7.84 m, pitch 23.5°" in text and "±" not in text

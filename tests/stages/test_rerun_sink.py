@@ -101,6 +101,24 @@ def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
     assert "Pinhole:image_from_camera" in rows["/camera"][0][1]
 
 
+def test_status_shows_the_camera_a_v2_network_decoded_with_and_changes_only_with_it(tmp_path):
+    from core.packets import HeightCamera
+
+    path = tmp_path / "v2.rrd"
+    sink = RerunSink(path, "save", OutputConfig(), "v2-run")
+    for index, pitch in enumerate([18.21, 18.24, 19.0]):
+        packet = make_packet(index)
+        packet.camera.source = "camera-height"
+        packet.height_camera = HeightCamera("heads", 6.0, pitch, 0.3, 512.0, pitch_std_deg=1.1,
+                                            roll_std_deg=0.5, focal_std_pct=6.0, frames=index + 1)
+        sink.write(packet)
+    sink.close()
+    status = [(frame, row["TextDocument:text"][0]) for frame, row in rrd_rows(path)["/status"]]
+    assert [frame for frame, _ in status] == [0, 2], "a new frame count alone is not a new state"
+    assert "camera heads" in status[0][1] and "pitch 18.2° ±1.1°" in status[0][1]
+    assert "pitch 19.0°" in status[1][1]
+
+
 def test_frame_encoder_encodes_once_and_converts_heights_to_mm():
     encoder = FrameEncoder(jpeg_quality=90, height_map_scale=2)
     packet = make_packet(0)

@@ -1,0 +1,122 @@
+"""Metres from HeightNet v2's ground-contact offsets: which camera, and the closed form with it.
+
+The offsets are the network's; metres need the camera (``stages/ground_contact.py``). The camera
+is the run's one camera (``stages.calibration.camera_for_run``: the same one the geometry channel
+measures with), taken in this order:
+
+1. a pose, exact: a calibration file's, or one in ``[camera]`` (height_m and pitch_deg, as
+   ``heightpipe calibrate`` prints them), with the lens of the file or of ``camera.fov_deg``;
+2. only the mounting height (``--camera-height``): pitch, roll and focal length from the
+   network's camera heads, averaged over the frames (``stages/camera_heads.py``), with the
+   heads' uncertainty; the focal length of an intrinsic calibration file when there is one.
+
+A given camera comes first because it is exact and the heads are an estimate from pictures; the
+heads come last but do not need anything beyond the one number most users know. With none of
+these there is no scale at all, and the run stops with one line naming the flags, instead of
+decoding with an assumed camera as v1 models do: a v2 network's heights would be wrong in shape
+too (a wrong pitch bends them across the image), not just in scale.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from core.errors import ConfigError
+from core.packets import CameraInfo, HeightCamera
+from stages.calibration import angles_from_rotation, camera_centre
+from stages.camera_heads import HeadsAverage, camera_from_heads
+from stages.ground_contact import PinholeCamera, heights_from_offsets
+from stages.heightnet_model import ModelOutput
+
+MAX_HEIGHT_M = 50.0
+"""Decoded heights are clipped to [0, 50] m, as heightnet/contact_eval.py clips them: nothing
+stands below the ground, and a contact point predicted near the horizon must not decode to
+kilometres."""
+NO_CAMERA = ("this height model (HeightNet v2) needs the camera to give metres: give --calibration FILE, "
+             "or --camera-height M (camera.height_m; the network then estimates pitch, roll and focal "
+             "length), or a pose in [camera] (height_m and pitch_deg)")
+
+
+def camera_source(camera: CameraInfo, assumed_camera_ok: bool = False) -> str:
+    """Where the decoding camera comes from (``HeightCamera.source``); ConfigError without one.
+
+    ``assumed_camera_ok``: the camera height of a camera known to be assumed (source "none") is
+    good enough for the heads: ``heightpipe calibrate`` wants only what stands above the ground.
+    """
+    if camera.R is not None and camera.t is not None and camera.K is not None:
+        if camera.pose_from == "config":
+            return "self" if camera.source == "self" else "config"
+        return "calibration"
+    if camera.height_m is not None and camera.height_m > 0:
+        if camera.source != "none":
+            return "heads"
+        if assumed_camera_ok:
+            return "assumed"
+    raise ConfigError(NO_CAMERA)
+
+
+def input_camera(camera: CameraInfo, width: int, height: int) -> PinholeCamera:
+    """A posed run camera as the network's input sees it: the frame squashed to width x height."""
+    pinhole = PinholeCamera(np.asarray(camera.K, np.float64), np.asarray(camera.R, np.float64),
+                            camera_centre(camera))
+    return pinhole.window(0, 0, camera.width, camera.height, width, height)
+
+
+def input_intrinsics(camera: CameraInfo, width: int, height: int) -> np.ndarray:
+    """The run camera's K for the frame squashed to width x height (the pose is not needed)."""
+    lens = PinholeCamera(np.asarray(camera.K, np.float64), np.eye(3), np.zeros(3))
+    return lens.window(0, 0, camera.width, camera.height, width, height).K
+
+
+class ContactHeights:
+    """Decodes each frame's offsets with the run's camera; holds the camera heads' running mean.
+
+    One instance per camera and run: the average assumes every frame it sees is from one fixed
+    camera.
+    """
+
+    def __init__(self, assumed_camera_ok: bool = False):
+        self.assumed_camera_ok = assumed_camera_ok
+        self.heads = HeadsAverage()
+
+    def decode(self, output: ModelOutput, camera: CameraInfo,
+               frame_size: tuple[int, int]) -> tuple[np.ndarray, HeightCamera]:
+        """Metres (float32, frame_size = (width, height)) and the camera they were decoded with."""
+        source = camera_source(camera, self.assumed_camera_ok)
+        in_h, in_w = output.offsets.shape[:2]
+        if source in ("heads", "assumed"):
+            pinhole, used = self._heads_camera(output.camera, camera, in_w, in_h)
+        else:
+            pinhole, used = input_camera(camera, in_w, in_h), _given(camera, source)
+        metres = np.clip(heights_from_offsets(pinhole, output.offsets), 0.0, MAX_HEIGHT_M)
+        width, height = frame_size
+        if (width, height) != (in_w, in_h):
+            metres = cv2.resize(metres, (width, height), interpolation=cv2.INTER_LINEAR)
+        return metres.astype(np.float32), used
+
+    def _heads_camera(self, outputs: np.ndarray, camera: CameraInfo, in_w: int,
+                      in_h: int) -> tuple[PinholeCamera, HeightCamera]:
+        self.heads.add(outputs)
+        mean, std = self.heads.mean, self.heads.std
+        if self.heads.frames == 0:  # nothing finite from the heads yet: this frame's, whatever it is
+            mean, std = np.asarray(outputs[:3], np.float64), np.full(3, np.inf)
+        K = input_intrinsics(camera, in_w, in_h) if camera.lens_from_file and camera.K is not None else None
+        pinhole = camera_from_heads(mean, in_w, in_h, (camera.width, camera.height), camera.height_m, K)
+        focal_given = K is not None
+        used = HeightCamera(
+            source="heads" if camera.source != "none" else "assumed", height_m=float(camera.height_m),
+            pitch_deg=math.degrees(mean[0]), roll_deg=math.degrees(mean[1]),
+            focal_px=float(camera.K[1, 1]) if focal_given else math.exp(mean[2]) * camera.height,
+            pitch_std_deg=math.degrees(std[0]), roll_std_deg=math.degrees(std[1]),
+            focal_std_pct=0.0 if focal_given else math.expm1(std[2]) * 100.0,
+            frames=self.heads.frames, focal_given=focal_given)
+        return pinhole, used
+
+
+def _given(camera: CameraInfo, source: str) -> HeightCamera:
+    pitch, roll, _ = angles_from_rotation(camera.R)
+    return HeightCamera(source=source, height_m=float(camera_centre(camera)[2]), pitch_deg=pitch,
+                        roll_deg=roll, focal_px=float(camera.K[1, 1]))
