@@ -375,7 +375,7 @@ class TrainV2Config:
     """Matched points per frame pair for the height-consistency loss."""
     checkpoint_every: int = 250
     log_every: int = 20
-    eval_every: int = 250
+    eval_every: int = 500
     """Steps between held-out evaluations (rows of curve.csv)."""
     offset_all_weight: float = 0.3
     """Offset loss on every labelled pixel (the object-weighted mover term has weight 1)."""
