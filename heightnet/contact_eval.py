@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 import torch
 
-from stages.ground_contact import PinholeCamera, camera_from_angles, heights_from_offsets
+from stages.camera_heads import camera_from_heads
+from stages.ground_contact import PinholeCamera, heights_from_offsets
 from stages.centre_detections import CentreDetections, box_iou, centre_detections
 from heightnet.contact_data import CLASS_GROUPS, ContactSequence, camera_channels, camera_targets
 from heightnet.contact_model import DETECTION_CLASSES, DETECTION_STRIDE
@@ -76,15 +77,6 @@ def predict(net: torch.nn.Module, rgb: np.ndarray, width: int, height: int,
     return offsets[0].permute(1, 2, 0).numpy(), cam[0].numpy(), found
 
 
-def heads_camera(camera_outputs: np.ndarray, width: int, height: int, source_size: tuple[int, int],
-                 camera_height_m: float) -> PinholeCamera:
-    """The camera the heads describe, at the input size, for a frame squashed from source_size."""
-    pitch, roll, log_focal = (float(v) for v in camera_outputs[:3])
-    src_w, src_h = source_size
-    aspect = (width / src_w) / (height / src_h)
-    return camera_from_angles(width, height, camera_height_m, pitch, roll, math.exp(log_focal) * height, aspect)
-
-
 def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: int, height: int,
              min_pixels: int = 20, frames: int = 2) -> Scores:
     was_training = net.training
@@ -104,7 +96,7 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
         used = range(min(frames, len(seq)))
         outputs = [predict(net, np.asarray(seq.rgb[t]), width, height, true_camera) for t in used]
         mean_camera = np.mean([cam for _, cam, _ in outputs], axis=0)
-        head_camera = heads_camera(mean_camera, width, height, (src_w, src_h), seq.camera.height_m)
+        head_camera = camera_from_heads(mean_camera, width, height, (src_w, src_h), seq.camera.height_m)
         truth_cam = camera_targets(true_camera, height)
         pitch_err.append(abs(math.degrees(mean_camera[0] - truth_cam[0])))
         roll_err.append(abs(math.degrees(mean_camera[1] - truth_cam[1])))

@@ -71,9 +71,9 @@ def camera_from_heads(values: np.ndarray, width: int, height: int, source_size: 
 
     The input is the source frame squashed to that size, so its pixels are not square when the
     aspect ratios differ; the heads' focal length is the vertical one, in image heights, which
-    the squash leaves alone, and the horizontal one follows from the squash (as
-    heightnet/contact_eval.py ``heads_camera``). ``K`` (input-size intrinsics from a calibration
-    file) replaces the heads' focal length and principal point when the lens is known.
+    the squash leaves alone, and the horizontal one follows from the squash. ``K`` (input-size
+    intrinsics from a calibration file) replaces the heads' focal length and principal point
+    when the lens is known.
     """
     pitch, roll, log_focal = (float(v) for v in np.asarray(values)[:HEAD_VALUES])
     src_w, src_h = source_size
