@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from core.packets import BOX, GEOMETRY
+
 WHOLE_VISIBILITY = 0.9
 MIN_BOX_PX = 20
 EDGE_PX = 2
@@ -47,10 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     tiles: list[np.ndarray] = []
     for sequence in sequences:
         for cls, truth, true_mask, detection, frame, camera in _vehicles(sequence, args.every):
-            readings[cls].append((truth, true_mask, detection.vehicle_height_m if detection else np.nan,
-                                  detection.geometry_height_m if detection and detection.geometry_height_m
-                                  else np.nan))
-            if args.picture and detection is not None and detection.vehicle_height_m is not None \
+            readings[cls].append((truth, true_mask, detection.height(BOX) if detection else np.nan,
+                                  detection.height(GEOMETRY) if detection else np.nan))
+            if args.picture and detection is not None and BOX in detection.heights \
                     and len(tiles) < PICTURE_TILES and len(readings[cls]) % 7 == 1:
                 tiles.append(_tile(frame, camera, detection, truth))
         print(f"  {sequence.name}: {sum(len(r) for r in readings.values())} vehicle outlines so far", file=sys.stderr)

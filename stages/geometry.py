@@ -33,7 +33,7 @@ from collections import deque
 import numpy as np
 
 from core.config import CameraConfig
-from core.packets import CameraInfo, Detection, FramePacket
+from core.packets import BOX, GEOMETRY, NETWORK, CameraInfo, Detection, FramePacket, Measurement
 from stages.calibration import has_distortion, heights_from_foot_top, is_calibrated, undistort_pixels
 from stages.vehicle_geometry import vehicle_box
 
@@ -73,7 +73,8 @@ VEHICLE_END_ON_NOISE_M = 0.3
 
 
 class GeometryMeasurer:
-    """Sets ``geometry_height_m``, ``geometry_noise_m`` and ``ground_xy_m`` of each detection.
+    """Adds each whole detection's ``GEOMETRY`` height (and a vehicle's ``BOX`` height), its class
+    in metres, its ground point, and a lower bound on its height where its foot is cut.
 
     Does nothing unless ``packet.camera`` has a pose (source "calibration" or "self").
     Points are undistorted here when the camera still has distortion (no Undistorter ran).
@@ -122,23 +123,23 @@ class GeometryMeasurer:
             if whole[i] and np.isfinite(heights[i]) and np.isfinite(widths[i]) and heights[i] > 0:
                 # The network's height classed people it reads at half their height as "other";
                 # the calibrated camera measures both height and width in metres.
-                detection.cls = metric_class(float(heights[i]), float(widths[i]))
+                detection.classify(metric_class(float(heights[i]), float(widths[i])), "geometry")
             height = heights[i]
             if (not foot_ok[i] and np.isfinite(height) and 0.0 < height < camera.height_m
                     and not widths[i] >= VEHICLE_MIN_WIDTH_M):
                 # The top's ray descends (it is below the horizon): a nearer foot means a taller object.
                 # Not for a vehicle-wide one: its top is the roof's far edge, metres behind the foot
                 # (generator, a car coming into view at the bottom: bounds of 3.2-4.4 m for 1.5 m).
-                detection.geometry_min_height_m = float(height)
+                detection.min_height_m = float(height)
             if not (whole[i] and np.isfinite(height) and np.isfinite(noise[i])
                     and PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]):
                 continue
             extent = HORIZONTAL_EXTENT_M.get(detection.cls, HORIZONTAL_EXTENT_M["other"])
             shape_error = self._top_offset_error(camera.height_m, height, distance[i], extent)
             scale_error = height * self.camera_height_std_m / camera.height_m
-            detection.geometry_height_m = float(height)
-            detection.geometry_noise_m = float(np.sqrt(noise[i] ** 2 + shape_error ** 2 + scale_error ** 2))
-            detection.geometry_bias_m = float(noise[i])
+            detection.add_height(GEOMETRY, Measurement(
+                float(height), float(np.sqrt(noise[i] ** 2 + shape_error ** 2 + scale_error ** 2)),
+                source="geometry", bias_m=float(noise[i])))
         if has_distortion(camera):
             return   # outlines are in raw pixels; the vehicle geometry needs undistorted ones
         for i, detection in enumerate(detections):
@@ -154,9 +155,9 @@ class GeometryMeasurer:
         scale_error = fitted.height_m * self.camera_height_std_m / camera.height_m
         end_on = VEHICLE_END_ON_NOISE_M if fitted.length_assumed else 0.0
         shape, shape_bias = np.hypot(VEHICLE_SHAPE_NOISE_M, end_on), np.hypot(VEHICLE_SHAPE_BIAS_M, end_on)
-        detection.vehicle_height_m = fitted.height_m
-        detection.vehicle_noise_m = float(np.sqrt(pixel ** 2 + shape ** 2 + scale_error ** 2))
-        detection.vehicle_bias_m = float(np.hypot(pixel, shape_bias))
+        noise = float(np.sqrt(pixel ** 2 + shape ** 2 + scale_error ** 2))
+        detection.add_height(BOX, Measurement(fitted.height_m, noise, source="vehicle geometry",
+                                              bias_m=float(np.hypot(pixel, shape_bias))))
         detection.vehicle_axis_xy = fitted.axis_xy
         detection.vehicle_length_assumed = fitted.length_assumed
 
@@ -240,13 +241,18 @@ class NetworkScale:
         return float(1.2533 * 1.4826 * np.median(np.abs(ratios - np.median(ratios))) / np.sqrt(n))
 
     def rescale(self, detections: list[Detection]) -> None:
+        """Learn from this frame's whole people, then replace each network height (vehicles' aside)
+        by the rescaled one, its noise grown by the scale's uncertainty (source "geometry scale")."""
         for d in detections:
-            if (d.cls == "person" and d.geometry_height_m is not None and np.isfinite(d.height_m)
-                    and d.height_m > 0):
-                self.log_ratios.append(float(np.log(d.geometry_height_m / d.height_m)))
+            network, geometry = d.heights.get(NETWORK), d.heights.get(GEOMETRY)
+            if (d.cls == "person" and geometry is not None and network is not None
+                    and np.isfinite(network.value_m) and network.value_m > 0):
+                self.log_ratios.append(float(np.log(geometry.value_m / network.value_m)))
         scale, relative = self.scale, self.scale_noise
         for d in detections:
-            if d.cls == "vehicle":
+            network = d.heights.get(NETWORK)
+            if d.cls == "vehicle" or network is None:
                 continue      # learnt on thin people; the network reads big objects far less low
-            d.height_m *= scale
-            d.height_noise_m = float(np.hypot(d.height_noise_m * scale, relative * d.height_m))
+            height = network.value_m * scale
+            noise = float(np.hypot(network.noise_m * scale, relative * height))
+            d.add_height(NETWORK, Measurement(height, noise, source="geometry scale", bias_m=network.bias_m))

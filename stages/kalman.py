@@ -9,10 +9,11 @@ Two independent filters per track:
   applied to this state (``warp``), never to the height.
 * ``HeightFilter``: the object's height in metres, a random walk with near-zero process noise
   (objects do not grow), so every frame is one more measurement of the same number; beside it,
-  each channel's (network, foot/top geometry, vehicle box) bias on this object, which frames
-  do not average away.
+  each channel's (network, foot/top geometry, vehicle box, any other) bias on this object,
+  which frames do not average away.
   A second measurement channel (geometry) is just a second ``update`` in the same frame
-  (sequential update: independent measurements may be applied one after the other).
+  (sequential update: independent measurements may be applied one after the other); a channel
+  the filter has not seen before gets a bias state of its own at its first measurement.
 
 The algebra is filterpy's ``KalmanFilter`` (Joseph-form covariance update); only the
 matrices are set here.
@@ -26,6 +27,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from core.config import TrackingConfig
+from core.packets import BOX, GEOMETRY, NETWORK
 
 Box = tuple[float, float, float, float]
 
@@ -140,15 +142,11 @@ class MotionFilter:
         self.kf.P = snapshot.P.copy()
 
 
-# Channels whose bias prior comes with their first measurement (see ``HeightFilter._start_bias``).
-GEOMETRY_CHANNELS = ("geometry", "box")
-
-
 class HeightFilter:
     """Object height in metres: a constant with a tiny random walk, plus each channel's bias on it.
 
     Measurements come through named channels ("network", "geometry" from a person's foot and
-    crown, "box" from a vehicle's outline); several in one frame are
+    crown, "box" from a vehicle's outline, or any channel a stage adds); several in one frame are
     applied one after the other (sequential update of independent measurements), and the
     filter remembers which channels have contributed (``source``).
 
@@ -156,10 +154,11 @@ class HeightFilter:
     low in every frame (its colours, its pose, the scene behind it stay the same); the geometry
     takes the same hair for the crown and the same shoes for the soles, a pixel or two off in
     every frame. Averaging frames converges on the wrong number with a shrinking std. The state
-    therefore holds each channel's bias beside the height, ``[H, b_n, b_g, b_box]``: a network
-    height measures ``H + b_n``, a geometry height ``H + b_g``. Each bias starts at 0 with its own
-    prior std (the network's ``bias_share`` of the height; a geometry's ``geometry_bias_factor``
-    times the per-object part of its first measurement's noise, its pixels, which shrinks with the
+    therefore holds each channel's bias beside the height, ``[H, b_n, b_g, b_box, ...]``: a network
+    height measures ``H + b_n``, a geometry height ``H + b_g``; a channel first seen later is
+    appended to the state then. Each bias starts at 0 with its own prior std (the network's
+    ``bias_share`` of the height; any other channel's ``geometry_bias_factor`` times the per-object
+    part of its first measurement's noise, for the geometry its pixels, which shrinks with the
     object's size in pixels) and stays constant.
     Frames then average only the white noise: the std never falls below what the biases allow,
     and where both channels measure, the height settles between them by their bias priors (the
@@ -167,8 +166,8 @@ class HeightFilter:
     network height (feet cut by the frame) is corrected by the learnt difference.
     """
 
-    CHANNEL_BIAS = {"network": 1, "geometry": 2, "box": 3}
-    """State index of each channel's bias."""
+    CHANNEL_BIAS = {NETWORK: 1, GEOMETRY: 2, BOX: 3}
+    """State index of the shipped channels' biases; other channels' follow as they come."""
 
     def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = "network",
                  bias_share: float = 0.0, geometry_bias_factor: float = 0.0, bias_std_m: float | None = None):
@@ -180,9 +179,12 @@ class HeightFilter:
         kf.Q = np.diag([process_noise_m ** 2, 0.0, 0.0, 0.0])
         self.kf = kf
         self.geometry_bias_factor = geometry_bias_factor
+        self.channel_bias = dict(self.CHANNEL_BIAS)
+        """State index of each channel's bias."""
         self.updates: dict[str, int] = {}
         self._start_bias(channel, std_m if bias_std_m is None else bias_std_m)
-        bias = self.CHANNEL_BIAS.get(channel)
+        kf = self.kf                      # grown by a bias state if the channel is a new one
+        bias = self.channel_bias.get(channel)
         if bias is not None:
             # z = H + b: the height is as unsure as the measurement and the bias together.
             variance = kf.P[bias, bias]
@@ -191,13 +193,26 @@ class HeightFilter:
         self.updates[channel] = 1
 
     def _start_bias(self, channel: str, bias_std_m: float) -> None:
-        """A geometry channel's first measurement sets its bias prior: it scales with the part of
-        its noise that repeats on this object (its pixels, a vehicle's shape; not the camera height
-        that every object and the network's scale share)"""
-        if channel in GEOMETRY_CHANNELS and not self.updates.get(channel):
-            bias = self.CHANNEL_BIAS[channel]
+        """Any channel but the network's sets its bias prior with its first measurement: it scales
+        with the part of its noise that repeats on this object (the geometry's pixels, a vehicle's
+        shape; not the camera height that every object and the network's scale share)"""
+        if channel != NETWORK and not self.updates.get(channel):
+            if channel not in self.channel_bias:
+                self._add_bias_state(channel)
+            bias = self.channel_bias[channel]
             self.kf.P[bias, :] = self.kf.P[:, bias] = 0.0
             self.kf.P[bias, bias] = (self.geometry_bias_factor * bias_std_m) ** 2
+
+    def _add_bias_state(self, channel: str) -> None:
+        """One more state, a new channel's bias: 0, uncorrelated, constant (its prior comes next)."""
+        n = self.kf.dim_x
+        grown = KalmanFilter(dim_x=n + 1, dim_z=1)
+        grown.x = np.vstack([self.kf.x, [[0.0]]])
+        grown.P = np.pad(self.kf.P, ((0, 1), (0, 1)))
+        grown.F = np.eye(n + 1)
+        grown.Q = np.pad(self.kf.Q, ((0, 1), (0, 1)))
+        self.kf = grown
+        self.channel_bias[channel] = n
 
     @property
     def source(self) -> str:
@@ -214,9 +229,11 @@ class HeightFilter:
         return float(np.sqrt(self.kf.P[0, 0]))
 
     def _row(self, channel: str) -> np.ndarray:
-        row = np.array([[1.0, 0.0, 0.0, 0.0]])
-        if channel in self.CHANNEL_BIAS:
-            row[0, self.CHANNEL_BIAS[channel]] = 1.0
+        """What the channel reads: the height plus its bias (no bias state yet: the height)."""
+        row = np.zeros((1, self.kf.dim_x))
+        row[0, 0] = 1.0
+        if channel in self.channel_bias:
+            row[0, self.channel_bias[channel]] = 1.0
         return row
 
     def predict(self) -> None:
@@ -232,7 +249,7 @@ class HeightFilter:
         row = self._row(channel)
         expected = float((row @ self.kf.x)[0, 0])
         variance = self.expected_std_m(channel) ** 2 + std_m ** 2
-        if channel in GEOMETRY_CHANNELS and not self.updates.get(channel):
+        if channel != NETWORK and not self.updates.get(channel):
             variance += (self.geometry_bias_factor * std_m) ** 2
         return abs(height_m - expected) / float(np.sqrt(variance))
 

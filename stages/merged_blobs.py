@@ -9,8 +9,9 @@ trackers split merged blobs on prediction). On half of the held-out trk_test40 s
 of 2926 person boxes lay in a blob shared with another person although they had been detected
 on their own within the last 15 frames.
 
-A piece's height is not measured: the blob's top and foot may belong to the other person, so
-the pieces move the tracks' boxes only, and their heights hold as through an occlusion.
+A piece's height is not measured (no channel: the blob's top, foot and outline may belong to the
+other object), so the pieces move the tracks' boxes only, and their heights hold as through an
+occlusion.
 """
 
 from __future__ import annotations
@@ -114,9 +115,9 @@ def _cut(detection: Detection, boxes: np.ndarray, classes: list[str]) -> list[De
         pieces.append(replace(
             detection,
             box=(float(left), float(top), float(c1 - c0), float(r1 - r0)),
-            height_m=float("nan"), height_noise_m=float("inf"), cls=cls,
+            heights={}, cls=cls, cls_source="tracking",
             foot_xy=(left + (c1 - c0) / 2.0, float(top + r1 - r0)), top_xy=(left + (c1 - c0) / 2.0, float(top)),
-            geometry_height_m=None, geometry_noise_m=None, geometry_min_height_m=None, ground_xy_m=None,
-            mask=piece,
+            min_height_m=None, ground_xy_m=None, mask=piece, outline=None,
+            vehicle_axis_xy=None, vehicle_length_assumed=False,
         ))
     return pieces

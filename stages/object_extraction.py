@@ -35,13 +35,13 @@ The stage is this module (the per-frame flow and its state); the background mode
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from core.config import GroundConfig, ObjectsConfig
-from core.packets import Detection, FramePacket
+from core.packets import NETWORK, Detection, FramePacket, Measurement
 from stages.association import Region, points_in_regions
 from stages.background_model import FOREGROUND_VALUE, drop_small_pieces, make_background_subtractor
 from stages.blob_splitting import split_by_foreground, split_by_heads, split_by_height_peaks
@@ -381,10 +381,11 @@ class ObjectExtractor:
         for column, detection in enumerate(detections):
             residuals = change[inside[:, column]]
             residuals = residuals[np.isfinite(residuals)]
-            if residuals.size >= MIN_CONSISTENCY_POINTS and np.isfinite(detection.height_noise_m):
+            network = detection.heights.get(NETWORK)
+            if residuals.size >= MIN_CONSISTENCY_POINTS and network is not None and np.isfinite(network.noise_m):
                 residual = float(np.median(residuals))
-                detection.height_noise_m = float(np.hypot(detection.height_noise_m,
-                                                          self.config.consistency_gain * residual))
+                noise = float(np.hypot(network.noise_m, self.config.consistency_gain * residual))
+                detection.add_height(NETWORK, replace(network, noise_m=noise))
 
     def _measure(self, mask: np.ndarray, height_map: np.ndarray | None, corners: tuple[int, int, int, int],
                  at_edge: np.ndarray, scale: float, beyond: tuple[bool, bool]) -> Detection | None:
@@ -396,7 +397,7 @@ class ObjectExtractor:
         top_cut = bool(rows.size and at_edge[rows[0]:rows[0] + band].any()) or beyond[0]
         foot_cut = bool(rows.size and at_edge[max(rows[-1] + 1 - band, 0):rows[-1] + 1].any()) or beyond[1]
         touches_border = bool(at_edge.any())
-        height_m, noise_m = float("nan"), float("inf")
+        height_m, measured = float("nan"), {}
         if height_map is not None:
             heights = height_map[y0:y1, x0:x1]
             height_m = robust_top(heights, mask, self.config.height_percentile)
@@ -406,13 +407,14 @@ class ObjectExtractor:
             foot_cut = foot_cut or foot_above_ground(heights, mask, rows, height_m)
             if top_cut:
                 noise_m = float("inf")    # top cut off by the frame: a lower bound, not a height
+            measured[NETWORK] = Measurement(height_m, noise_m, source="objects")
         return Detection(
             box=(float(x0), float(y0), box_w, box_h),
-            height_m=height_m,
+            heights=measured,
             cls=coarse_class(height_m, box_w, box_h),
+            cls_source="objects",
             foot_xy=((x0 + x1) / 2.0, float(y1)),
             top_xy=((x0 + x1) / 2.0, float(y0)),
-            height_noise_m=noise_m,
             touches_border=touches_border,
             foot_cut=foot_cut,
             top_cut=top_cut,

@@ -21,11 +21,13 @@ One frame, in order:
 5. A track seen again after a gap is re-updated along a straight virtual path from its last
    observation (OC-SORT's observation-centric re-update), so the velocity that drifted while
    it was hidden does not carry on.
-6. Height: the network's single-frame height and, where the camera is calibrated, the geometry
+6. Height: each detection carries its height measurements by channel (``Detection.heights``).
+   The network's single-frame height and, where the camera is calibrated, the geometry
    height (a person's foot and crown; a vehicle track's box fitted to its outline, if the box
-   lies along the way it drives) are fused into the height filter (for walkers the network's
-   heights go through the upper quantile of a short window: stature, not the gait's mean dip
-   nor a blob that lost its feet or head for a frame); a network height below the geometry's
+   lies along the way it drives), and any channel another stage added, are fused into the
+   height filter (for walkers the network's heights go through the upper quantile of a short
+   window: stature, not the gait's mean dip nor a blob that lost its feet or head for a
+   frame); a network height below the geometry's
    lower bound (feet cut off) is raised to it; outliers beyond ``height_gate_sigma`` are
    skipped, and a channel whose run of rejections outweighs the state restarts it. The height
    state carries each channel's bias on this object beside the height (``HeightFilter``): where
@@ -47,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from core.config import TrackingConfig
-from core.packets import Detection, FeatureMatches, FramePacket, Track
+from core.packets import BOX, GEOMETRY, NETWORK, Detection, FeatureMatches, FramePacket, Measurement, Track
 from stages.association import Region, assign, direction_mismatch, feature_votes, iou_matrix
 from stages.kalman import FilterFactory, HeightFilter, MotionFilter, MotionSnapshot, StatureWindow
 from stages.merged_blobs import split_by_predictions
@@ -289,9 +291,9 @@ class ObjectTracker:
             if track.height is None or sum(track.height.updates.values()) < HEIGHT_GATE_AFTER:
                 continue
             for col, detection in enumerate(detections):
-                if _usable(detection.height_m, detection.height_noise_m):
-                    residual = track.height.normalized_residual(detection.height_m, detection.height_noise_m,
-                                                                 "network")
+                network = detection.heights.get(NETWORK)
+                if network is not None and network.usable:
+                    residual = track.height.normalized_residual(network.value_m, network.noise_m, NETWORK)
                     gaps[row, col] = (residual / self.config.height_gate_sigma) ** 2
         return gaps
 
@@ -379,55 +381,46 @@ class ObjectTracker:
         track.motion.update(box)
 
     def _update_height(self, track: _TrackState, detection: Detection, top_lost: bool) -> None:
-        """Fold in the network height, then the geometry height (sequential update)."""
-        channels = []
+        """Fold this frame's height measurements into the track's filter, one after the other."""
         boxed = track.cls in BOX_GEOMETRY_CLASSES
         if (boxed and track.height_geometry_trusted and track.height is not None
-                and track.height.updates.get("geometry", 0) > 0):
+                and track.height.updates.get(GEOMETRY, 0) > 0):
             # Foot/top geometry went in while the track passed for a person or cyclist; as a vehicle
             # its foot/top height is the far roof edge's: start again from this frame's measurements.
             track.height = None
             track.height_rejections.clear()
         track.height_geometry_trusted = not boxed
-        if _usable(detection.height_m, detection.height_noise_m):
-            height, noise = detection.height_m, detection.height_noise_m
-            if not boxed and detection.geometry_min_height_m is not None:
-                height = max(height, detection.geometry_min_height_m)   # the foot is cut: a bound
+        for channel, measurement in _channels_to_fuse(track, detection, boxed):
+            height, noise = measurement.value_m, measurement.noise_m
             if top_lost:
                 noise *= TOP_LOST_NOISE_FACTOR
-            if self.config.stature_window > 0 and track.cls in WALKER_CLASSES:
-                height = track.stature.add(height, noise)
-            channels.append(("network", height, noise, None))
-        geometry = None
-        if boxed and _usable(detection.vehicle_height_m, detection.vehicle_noise_m) and _box_agrees(track, detection):
-            geometry = ("box", detection.vehicle_height_m, detection.vehicle_noise_m, detection.vehicle_bias_m)
-        elif (not boxed or not channels) and _usable(detection.geometry_height_m, detection.geometry_noise_m):
-            # A vehicle's foot/top height is its far roof edge's, metres behind the foot (generator
-            # data: ~0.8 m high): it stands in only when nothing else measures the vehicle.
-            geometry = ("geometry", detection.geometry_height_m, detection.geometry_noise_m,
-                        detection.geometry_bias_m)
-        if geometry is not None:
-            channel, height, noise, bias_std = geometry
-            noise *= TOP_LOST_NOISE_FACTOR if top_lost else 1.0
-            # No stature window here: box points wobble ~20 px (Oxford, against labels) under a
-            # stated 2 px, so a window's upper quantile picks the boxes that overshoot, not the
-            # top of the gait (Oxford: mean 1.81 -> 1.80 m, median error 4.5 -> 3.8 cm without).
-            channels.append((channel, height, noise, bias_std))
-        for channel, height, noise, bias_std in channels:
-            if track.height is None:
-                track.height = self.filters.create_height_filter(height, noise, channel, bias_std)
-                continue
-            settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
-            if settled and (track.height.normalized_residual(height, noise, channel)
-                            > self.config.height_gate_sigma):
-                rejected = track.height_rejections.setdefault(channel, [])
-                rejected.append((height, noise))
-                if self._outweighs(rejected, track.height, channel):
-                    track.height = self._height_from(rejected, channel)
-                    track.height_rejections.clear()
-                continue
-            track.height_rejections.pop(channel, None)
-            track.height.update(height, noise, channel, bias_std)
+            if channel == NETWORK:
+                if not boxed and detection.min_height_m is not None:
+                    height = max(height, detection.min_height_m)   # the foot is cut: a bound
+                # Only the network's heights go through the stature window: box points wobble ~20 px
+                # (Oxford, against labels) under a stated 2 px, so a window's upper quantile picks the
+                # boxes that overshoot, not the top of the gait (Oxford: mean 1.81 -> 1.80 m, median
+                # error 4.5 -> 3.8 cm without).
+                if self.config.stature_window > 0 and track.cls in WALKER_CLASSES:
+                    height = track.stature.add(height, noise)
+            self._fuse(track, channel, height, noise, measurement.bias_m)
+
+    def _fuse(self, track: _TrackState, channel: str, height: float, noise: float, bias_std: float | None) -> None:
+        """One measurement into the track's height filter, behind the outlier gate."""
+        if track.height is None:
+            track.height = self.filters.create_height_filter(height, noise, channel, bias_std)
+            return
+        settled = sum(track.height.updates.values()) >= HEIGHT_GATE_AFTER
+        if settled and (track.height.normalized_residual(height, noise, channel)
+                        > self.config.height_gate_sigma):
+            rejected = track.height_rejections.setdefault(channel, [])
+            rejected.append((height, noise))
+            if self._outweighs(rejected, track.height, channel):
+                track.height = self._height_from(rejected, channel)
+                track.height_rejections.clear()
+            return
+        track.height_rejections.pop(channel, None)
+        track.height.update(height, noise, channel, bias_std)
 
     def _outweighs(self, rejected: list[tuple[float, float]], height: HeightFilter, channel: str) -> bool:
         """A run of rejections that says more than the state: the state was built on outliers.
@@ -469,9 +462,21 @@ class ObjectTracker:
         self.tracks.append(track)
 
 
-def _usable(height_m: float | None, noise_m: float | None) -> bool:
-    return (height_m is not None and noise_m is not None
-            and bool(np.isfinite(height_m)) and bool(np.isfinite(noise_m)) and noise_m > 0)
+def _channels_to_fuse(track: _TrackState, detection: Detection, boxed: bool) -> list[tuple[str, Measurement]]:
+    """The detection's usable height measurements that measure this track, in the order they are fused.
+
+    The network's first. Then, for a vehicle track, the box fitted to its outline where the box
+    lies along the way the track drives; for any other track the foot/top geometry, which stands in
+    for a vehicle only when nothing else measures it (its foot/top height is the far roof edge's:
+    ~0.8 m high on generator data). Then every other channel a stage added, as it is.
+    """
+    usable = {channel: m for channel, m in detection.heights.items() if m.usable}
+    chosen = [(NETWORK, usable[NETWORK])] if NETWORK in usable else []
+    if boxed and BOX in usable and _box_agrees(track, detection):
+        chosen.append((BOX, usable[BOX]))
+    elif (not boxed or not chosen) and GEOMETRY in usable:
+        chosen.append((GEOMETRY, usable[GEOMETRY]))
+    return chosen + [(channel, m) for channel, m in usable.items() if channel not in (NETWORK, GEOMETRY, BOX)]
 
 
 def _left_the_view(track: _TrackState, frame_size: tuple[int, int] | None) -> bool:
@@ -557,7 +562,7 @@ class TrackingStage:
 
 
 def without_heights(detection: Detection) -> Detection:
-    """The detection with its height measurements withheld: on a frame decoded with errors the
-    boxes still carry the tracks along, but no height measured on concealed pixels is fused."""
-    return dataclasses.replace(detection, height_m=float("nan"), geometry_height_m=None,
-                               geometry_min_height_m=None, vehicle_height_m=None)
+    """The detection with its height measurements withheld (every channel, and the lower bound): on
+    a frame decoded with errors the boxes still carry the tracks along, but no height measured on
+    concealed pixels is fused."""
+    return dataclasses.replace(detection, heights={}, min_height_m=None)
