@@ -31,12 +31,18 @@ from core.packets import BOX, GEOMETRY, NETWORK
 
 Box = tuple[float, float, float, float]
 
-# DeepSORT / BoT-SORT: position noise 1/20 of the box size, velocity noise 1/160 of it per frame.
-STD_WEIGHT_POSITION = 1.0 / 20.0
-STD_WEIGHT_VELOCITY = 1.0 / 160.0
 
-# 95 % quantile of chi-square with 4 degrees of freedom (box measurement): the gating distance.
-CHI2_95_4DOF = 9.4877
+@dataclass(frozen=True)
+class KalmanConstants:
+    """The box filter's noise: DeepSORT's weights (a 20 px and a 200 px box are equally sure
+    in relative terms)."""
+
+    # DeepSORT / BoT-SORT: position noise 1/20 of the box size, velocity noise 1/160 of it per frame.
+    std_weight_position: float = 1.0 / 20.0
+    std_weight_velocity: float = 1.0 / 160.0
+
+
+CONSTANTS = KalmanConstants()
 
 
 def box_to_z(box: Box) -> np.ndarray:
@@ -69,10 +75,10 @@ class MotionFilter:
         kf.x = np.zeros((8, 1))
         kf.x[:4] = box_to_z(box)
         w, h = kf.x[2, 0], kf.x[3, 0]
-        std = np.array([2 * STD_WEIGHT_POSITION * w, 2 * STD_WEIGHT_POSITION * h,
-                        2 * STD_WEIGHT_POSITION * w, 2 * STD_WEIGHT_POSITION * h,
-                        10 * STD_WEIGHT_VELOCITY * w, 10 * STD_WEIGHT_VELOCITY * h,
-                        10 * STD_WEIGHT_VELOCITY * w, 10 * STD_WEIGHT_VELOCITY * h])
+        std = np.array([2 * CONSTANTS.std_weight_position * w, 2 * CONSTANTS.std_weight_position * h,
+                        2 * CONSTANTS.std_weight_position * w, 2 * CONSTANTS.std_weight_position * h,
+                        10 * CONSTANTS.std_weight_velocity * w, 10 * CONSTANTS.std_weight_velocity * h,
+                        10 * CONSTANTS.std_weight_velocity * w, 10 * CONSTANTS.std_weight_velocity * h])
         kf.P = np.diag(std ** 2)
         self.kf = kf
 
@@ -86,10 +92,10 @@ class MotionFilter:
 
     def predict(self) -> None:
         w, h = max(self.kf.x[2, 0], 1.0), max(self.kf.x[3, 0], 1.0)
-        std = np.array([STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
-                        STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
-                        STD_WEIGHT_VELOCITY * w, STD_WEIGHT_VELOCITY * h,
-                        STD_WEIGHT_VELOCITY * w, STD_WEIGHT_VELOCITY * h])
+        std = np.array([CONSTANTS.std_weight_position * w, CONSTANTS.std_weight_position * h,
+                        CONSTANTS.std_weight_position * w, CONSTANTS.std_weight_position * h,
+                        CONSTANTS.std_weight_velocity * w, CONSTANTS.std_weight_velocity * h,
+                        CONSTANTS.std_weight_velocity * w, CONSTANTS.std_weight_velocity * h])
         self.kf.predict(Q=np.diag(std ** 2))
         # A box cannot shrink below a pixel; a negative size would flip the box.
         self.kf.x[2:4] = np.maximum(self.kf.x[2:4], 1.0)
@@ -104,8 +110,8 @@ class MotionFilter:
 
     def measurement_noise(self, noise_scale: float = 1.0) -> np.ndarray:
         w, h = max(self.kf.x[2, 0], 1.0), max(self.kf.x[3, 0], 1.0)
-        std = np.array([STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
-                        STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h]) * noise_scale
+        std = np.array([CONSTANTS.std_weight_position * w, CONSTANTS.std_weight_position * h,
+                        CONSTANTS.std_weight_position * w, CONSTANTS.std_weight_position * h]) * noise_scale
         return np.diag(std ** 2)
 
     def update(self, box: Box, noise_scale: float = 1.0) -> None:

@@ -15,7 +15,7 @@ from core.errors import SourceError
 from core.packets import GEOMETRY, NETWORK, CameraInfo, Detection, Frame, FramePacket, Measurement
 from stages.calibration import (camera_for_run, camera_from_pose, heights_from_foot_top, intrinsics_from_fov,
                                 load_calibration, project_points, undistort_pixels)
-from stages.geometry import NETWORK_PRIOR_SCALE_NOISE, SCALE_MIN_SAMPLES, GeometryMeasurer
+from stages.geometry import CONSTANTS, GeometryMeasurer
 from stages.undistortion import Undistorter
 
 SHARED_REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real"
@@ -312,17 +312,18 @@ def test_network_heights_are_rescaled_by_their_ratio_to_geometry_on_people():
     camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 6.0, 25.0)
     measurer = GeometryMeasurer(CameraConfig())
     rng = np.random.default_rng(0)
-    for frame in range(SCALE_MIN_SAMPLES + 5):
+    for frame in range(CONSTANTS.scale_min_samples + 5):
         people = [_person_read_low(camera, rng.uniform(-3, 3), rng.uniform(10, 20), rng.uniform(1.6, 1.9), 0.7)]
         # A cut person: no geometry, only the network sees it; and a vehicle, which neither feeds
         # the scale nor gets it.
         cut = dataclasses.replace(_person_read_low(camera, 0.0, 15.0, 1.8, 0.7), foot_cut=True)
         car = _widened(_person_read_low(camera, 2.0, 12.0, 1.5, 0.3), 120)
         measurer.process(packet_with(camera, people + [cut, car]))
-        if frame < SCALE_MIN_SAMPLES - 1:
+        if frame < CONSTANTS.scale_min_samples - 1:
             assert cut.height() == pytest.approx(0.7 * 1.8)           # too few ratios yet: untouched
             # ... but as unsure as an unknown scale makes it (half its height), not 0.15 m.
-            assert cut.heights[NETWORK].noise_m == pytest.approx(np.hypot(0.15, NETWORK_PRIOR_SCALE_NOISE * 0.7 * 1.8))
+            prior = CONSTANTS.network_prior_scale_noise * 0.7 * 1.8
+            assert cut.heights[NETWORK].noise_m == pytest.approx(np.hypot(0.15, prior))
     assert measurer.network_scale.scale == pytest.approx(1 / 0.7, rel=0.02)
     assert GEOMETRY not in cut.heights and cut.height() == pytest.approx(1.8, rel=0.02)
     # A scale learnt on thin people is not a vehicle's: its network height is left as it is.
@@ -334,7 +335,7 @@ def test_network_heights_are_rescaled_by_their_ratio_to_geometry_on_people():
 def test_network_rescaling_can_be_switched_off():
     camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 6.0, 25.0)
     measurer = GeometryMeasurer(CameraConfig(rescale_network=False))
-    for _ in range(SCALE_MIN_SAMPLES + 5):
+    for _ in range(CONSTANTS.scale_min_samples + 5):
         person = _person_read_low(camera, 0.0, 15.0, 1.8, 0.7)
         measurer.process(packet_with(camera, [person]))
     assert person.height() == pytest.approx(0.7 * 1.8) and measurer.network_scale is None

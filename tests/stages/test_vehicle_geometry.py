@@ -43,7 +43,7 @@ def box_outline(camera, centre, yaw_deg, length, width, height, cabin=None, clea
 
 
 # Seen from the side the lower outline runs under the wheels, below the plane its points are put
-# on (BODY_CLEARANCE_M): the footprint comes out nearer and the height ~0.15 m high.
+# on (body_clearance_m): the footprint comes out nearer and the height ~0.15 m high.
 SIDE_VIEW_TOLERANCE_M = 0.2
 OBLIQUE_TOLERANCE_M = 0.1
 
