@@ -227,6 +227,7 @@ def test_objects_are_classed_by_their_height_and_width_in_metres():
         d.classify("vehicle", "objects")                       # whatever the network's height said
     GeometryMeasurer(CameraConfig()).process(packet_with(camera, [walker, child, bike, car, bin_]))
     assert [d.cls for d in (walker, child, bike, car, bin_)] == ["person", "person", "cyclist", "vehicle", "other"]
+    assert {d.cls_source for d in (walker, child, bike, car, bin_)} == {"geometry"}   # who decided it
 
 
 # --------------------------------------------------------------------------- generator frames

@@ -68,7 +68,7 @@ def test_moving_person_becomes_one_detection_with_its_height():
     x, y, w, h = detection.box
     assert (x, y, w, h) == pytest.approx((100 + 6 * 14, 150, 40, 120), abs=4)
     assert detection.height() == pytest.approx(1.75, abs=0.06)
-    assert detection.cls == "person"
+    assert (detection.cls, detection.cls_source, detection.heights[NETWORK].source) == ("person", "objects", "objects")
     # Geometry points are the walker's own ends: the soles (whose heights are under the ground
     # threshold, so the height map's cut stops 2 px short) and the crown; the box reaches them too.
     assert (y, y + h) == (150, 150 + 120)
