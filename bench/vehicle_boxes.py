@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from core.packets import BOX, GEOMETRY
+
 WHOLE_VISIBILITY = 0.9
 MIN_BOX_PX = 20
 EDGE_PX = 2
@@ -47,10 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     tiles: list[np.ndarray] = []
     for sequence in sequences:
         for cls, truth, true_mask, detection, frame, camera in _vehicles(sequence, args.every):
-            readings[cls].append((truth, true_mask, detection.vehicle_height_m if detection else np.nan,
-                                  detection.geometry_height_m if detection and detection.geometry_height_m
-                                  else np.nan))
-            if args.picture and detection is not None and detection.vehicle_height_m is not None \
+            readings[cls].append((truth, true_mask, detection.height(BOX) if detection else np.nan,
+                                  detection.height(GEOMETRY) if detection else np.nan))
+            if args.picture and detection is not None and BOX in detection.heights \
                     and len(tiles) < PICTURE_TILES and len(readings[cls]) % 7 == 1:
                 tiles.append(_tile(frame, camera, detection, truth))
         print(f"  {sequence.name}: {sum(len(r) for r in readings.values())} vehicle outlines so far", file=sys.stderr)
@@ -121,7 +122,7 @@ def _tile(rgb: np.ndarray, camera, detection, truth_m: float) -> np.ndarray:
     import cv2
 
     from stages.calibration import project_points
-    from stages.vehicle_geometry import BODY_CLEARANCE_M, CAR_MAX_LENGTH_M, CAR_ROOF_SHARE, vehicle_box
+    from stages.vehicle_geometry import CONSTANTS, vehicle_box
 
     fitted = vehicle_box(camera, detection.outline, (detection.box[0], detection.box[1]))
     image = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR).copy()
@@ -129,16 +130,16 @@ def _tile(rgb: np.ndarray, camera, detection, truth_m: float) -> np.ndarray:
     across = np.array([-along[1], along[0]])
     centre = np.array(fitted.centre_xy_m)
     half = np.array([fitted.length_m, fitted.width_m]) / 2.0
-    roof = half * CAR_ROOF_SHARE if fitted.length_m < CAR_MAX_LENGTH_M else half
+    roof = half * np.asarray(CONSTANTS.car_roof_share) if fitted.length_m < CONSTANTS.car_max_length_m else half
 
     def outline(extent, z):
         corners = [centre + a * extent[0] * along + b * extent[1] * across
                    for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))]
         return project_points(camera, np.column_stack([np.array(corners), np.full(4, z)]))
 
-    # The footprint where its points were taken (BODY_CLEARANCE_M up), the roof at the box's height
+    # The footprint where its points were taken (body_clearance_m up), the roof at the box's height
     # and at the truth's.
-    for extent, z, colour in ((half, BODY_CLEARANCE_M, (0, 200, 0)), (roof, truth_m, (255, 255, 0)),
+    for extent, z, colour in ((half, CONSTANTS.body_clearance_m, (0, 200, 0)), (roof, truth_m, (255, 255, 0)),
                               (roof, fitted.height_m, (0, 0, 255))):
         cv2.polylines(image, [np.round(outline(extent, z) * 8).astype(np.int32)], True, colour, 1, shift=3)
     x, y, w, h = (int(v) for v in detection.box)

@@ -94,22 +94,66 @@ class FeatureMatches:
     """2x3 affine of the static background from the previous to this frame (shake)."""
 
 
+# Height channels of the shipped stages: the keys of ``Detection.heights`` and what a track's
+# ``height_source`` names. A stage may add a channel of any other name; the tracker fuses it as a
+# measurement of its own (its own bias on each object) with no edit anywhere else.
+NETWORK = "network"
+"""Object extraction's reading of the height map (the network's height)."""
+GEOMETRY = "geometry"
+"""Foot and top points through the calibrated camera (``stages.geometry``)."""
+BOX = "box"
+"""A vehicle's outline fitted with a box on the ground (``stages.vehicle_geometry``)."""
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One stage's reading of one object's height in one frame."""
+
+    value_m: float
+    """Height above the ground in metres."""
+    noise_m: float
+    """Standard deviation the tracker should assume for ``value_m`` this frame. ``inf`` (or NaN
+    ``value_m``) makes it no measurement: e.g. a top cut by the frame gives a lower bound only."""
+    source: str
+    """The stage that measured it ("objects", "geometry", ...; "geometry scale" where the
+    geometry rescaled the network's reading)."""
+    bias_m: float | None = None
+    """The part of ``noise_m`` that repeats on this object frame after frame (the same hair taken
+    for the crown in every frame): the prior std of the channel's bias on the object. None: all of
+    ``noise_m`` (the network's bias prior is a share of the height instead, ``[tracking]``)."""
+
+    @property
+    def usable(self) -> bool:
+        """A finite value with a finite, positive noise: something the tracker can fuse."""
+        return bool(np.isfinite(self.value_m) and np.isfinite(self.noise_m) and self.noise_m > 0)
+
+
 @dataclass
 class Detection:
-    """One object candidate in one frame, before tracking."""
+    """One object candidate in one frame, before tracking.
+
+    Object extraction makes it (box, class, ends, masks, the network's height); later stages add
+    what they measure: a height is one more entry in ``heights`` under the stage's channel, a
+    class decided again names its stage (``classify``).
+    """
 
     box: tuple[float, float, float, float]
     """x, y, w, h in source pixels."""
-    height_m: float
-    """Single-frame height estimate (robust top of the object's height map)."""
+    heights: dict[str, Measurement] = field(default_factory=dict)
+    """This frame's height measurements by channel (``NETWORK``, ``GEOMETRY``, ``BOX``, or any
+    channel a stage adds): each written by the stage that measured it (``add_height``), fused by
+    the tracker."""
     score: float = 1.0
     cls: str = "other"
+    """Coarse class (``OBJECT_CLASSES``); the tracker votes over frames."""
+    cls_source: str = ""
+    """The stage that decided ``cls``: "objects" (the network's height and the box's shape),
+    "geometry" (metres, calibrated cameras), "tracking" (a merged blob's piece takes its track's);
+    "" where the detection was made by hand."""
     foot_xy: tuple[float, float] | None = None
     """Image point where the object touches the ground."""
     top_xy: tuple[float, float] | None = None
     """Image point of the object's top."""
-    height_noise_m: float = 0.15
-    """Standard deviation the tracker should assume for height_m this frame."""
     touches_border: bool = False
     """Some of the object's pixels lie at the edge of the image: it may continue outside."""
     foot_cut: bool = False
@@ -117,17 +161,9 @@ class Detection:
     stands above the ground on the height map (legs hidden or missed by the background model)."""
     top_cut: bool = False
     """The object's top lies at the edge of the image: its heights are lower bounds."""
-    geometry_height_m: float | None = None
-    """Second measurement: height from foot and top points through the calibrated camera."""
-    geometry_noise_m: float | None = None
-    geometry_bias_m: float | None = None
-    """The part of ``geometry_noise_m`` that repeats on this object frame after frame: its crown and
-    soles' pixels. Not the camera-height scale that every object shares, nor the shape term, whose
-    assumed extent follows the class and flickers with it (Oxford: a walker born as a wide
-    "cyclist" blob kept a 12 cm bias prior for good)."""
-    geometry_min_height_m: float | None = None
+    min_height_m: float | None = None
     """Lower bound on the height when the foot is cut or hidden: the true foot lies lower in the
-    image, nearer the camera, where the top's ray stands higher (calibrated cameras only)."""
+    image, nearer the camera, where the top's ray stands higher (the geometry; calibrated cameras)."""
     ground_xy_m: tuple[float, float] | None = None
     """Foot point on the ground plane in world metres (calibrated cameras only)."""
     mask: np.ndarray | None = None
@@ -135,17 +171,27 @@ class Detection:
     outline: np.ndarray | None = None
     """The mask without what the foreground's growth added above the object (box-sized): the
     outline the vehicle geometry reads."""
-    vehicle_height_m: float | None = None
-    """Third reading, for vehicles: the height of the box on the ground that fits the outline
-    (``stages.vehicle_geometry``; calibrated cameras only)."""
-    vehicle_noise_m: float | None = None
-    vehicle_bias_m: float | None = None
-    """The part of ``vehicle_noise_m`` that repeats on this object frame after frame."""
     vehicle_axis_xy: tuple[float, float] | None = None
-    """Unit vector along that box's length on the ground: a vehicle drives along it."""
+    """Unit vector along the length of the box fitted to a vehicle's outline (channel ``BOX``),
+    on the ground: a vehicle drives along it."""
     vehicle_length_assumed: bool = False
     """Only the box's end was seen: its length is a car's by assumption (and a bicycle seen from
     the side looks the same; the tracker tells them apart by the direction they move)."""
+
+    def add_height(self, channel: str, measurement: Measurement) -> None:
+        """Record the channel's measurement (replacing one already there). Copy on write: a
+        detection copied with ``dataclasses.replace`` keeps its own measurements."""
+        self.heights = {**self.heights, channel: measurement}
+
+    def height(self, channel: str = NETWORK) -> float:
+        """The channel's height this frame, NaN where it has none."""
+        measurement = self.heights.get(channel)
+        return float("nan") if measurement is None else measurement.value_m
+
+    def classify(self, cls: str, source: str) -> None:
+        """Set the class, saying which stage decided it (a later stage's decision replaces an
+        earlier one's, visibly)."""
+        self.cls, self.cls_source = cls, source
 
 
 @dataclass
@@ -162,8 +208,9 @@ class Track:
     ground_xy_m: tuple[float, float] | None = None
     """Ground position in metres (world x, y) where the camera is calibrated."""
     height_source: str = "network"
-    """'network', 'geometry' (foot and top), 'box' (a vehicle's outline), 'fused', or 'none' while
-    the track has no height measurement (height_m NaN): e.g. its top is cut off by the image edge."""
+    """The one channel the height is made of ('network', 'geometry' (foot and top), 'box' (a
+    vehicle's outline), or a channel a stage added), 'fused' where several went in, or 'none'
+    while the track has no height measurement (height_m NaN): e.g. its top is cut by the image edge."""
     hits: int = 0
     age: int = 0
     updated: bool = True

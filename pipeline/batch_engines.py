@@ -27,10 +27,20 @@ from core.config import Config
 
 VIDEOS_FOLDER = "videos"
 PARTIAL_FOLDER = ".partial"
-STATUS_INTERVAL_S = 0.5
-"""A worker reports its frame count at most this often."""
-SHUTDOWN_TIMEOUT_S = 30.0
-"""How long a stop waits for workers to close their outputs before killing them."""
+
+
+@dataclass(frozen=True)
+class BatchEngineConstants:
+    """The engines' fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    status_interval_s: float = 0.5
+    """A worker reports its frame count at most this often: a live progress bar, few messages."""
+    shutdown_timeout_s: float = 30.0
+    """How long a stop waits for workers to close their outputs before killing them: the sinks'
+    own close waits up to 30 s (``stages.rerun_sink``)."""
+
+
+CONSTANTS = BatchEngineConstants()
 
 
 @dataclass
@@ -91,13 +101,13 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _throttled(report: Callable[[int, int | None, float], None] | None):
-    """run_pipeline's on_frame callback, reporting (frames, total, fps) at most every STATUS_INTERVAL_S."""
+    """run_pipeline's on_frame callback, reporting (frames, total, fps) at most every CONSTANTS.status_interval_s."""
     if report is None:
         return None
     last = [0.0]
 
     def on_frame(frames: int, total: int | None, elapsed_s: float) -> None:
-        if elapsed_s - last[0] >= STATUS_INTERVAL_S:
+        if elapsed_s - last[0] >= CONSTANTS.status_interval_s:
             last[0] = elapsed_s
             report(frames, total, frames / max(elapsed_s, 1e-9))
 
@@ -309,7 +319,7 @@ class _LocalRun:
                     last_check = time.monotonic()
                     self._replace_dead_workers()
             for slot in self.slots.values():
-                slot.process.join(timeout=SHUTDOWN_TIMEOUT_S)
+                slot.process.join(timeout=CONSTANTS.shutdown_timeout_s)
         except BaseException:
             self._stop()
             raise
@@ -371,7 +381,7 @@ class _LocalRun:
                     slot.tasks.put(None)
                     if slot.task is not None:
                         os.kill(slot.process.pid, signal.SIGTERM)
-            deadline = time.monotonic() + SHUTDOWN_TIMEOUT_S
+            deadline = time.monotonic() + CONSTANTS.shutdown_timeout_s
             while any(slot.process.is_alive() for slot in self.slots.values()) and time.monotonic() < deadline:
                 try:
                     self._handle(*self.events.get(timeout=0.1))
@@ -466,7 +476,7 @@ class RayEngine:
         try:
             submit()
             while in_flight:
-                done, _ = ray.wait(list(in_flight), num_returns=1, timeout=STATUS_INTERVAL_S)
+                done, _ = ray.wait(list(in_flight), num_returns=1, timeout=CONSTANTS.status_interval_s)
                 drain_progress()
                 for ref in done:
                     collect(ref)
@@ -475,7 +485,7 @@ class RayEngine:
             pending.clear()
             for ref in list(in_flight):
                 ray.cancel(ref)  # KeyboardInterrupt inside the task: run_pipeline closes its outputs
-            deadline = time.monotonic() + SHUTDOWN_TIMEOUT_S
+            deadline = time.monotonic() + CONSTANTS.shutdown_timeout_s
             while in_flight and time.monotonic() < deadline:
                 done, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
                 for ref in done:

@@ -43,7 +43,7 @@ def main(args: argparse.Namespace, config) -> int:
     from core.errors import ConfigError, HeightpipeError
     from pipeline.run_command import apply_flags, check_capture_limits
     from pipeline.stage_chain import build_stage_chain
-    from stages.calibration import ASSUMED_CAMERA_HEIGHT_M, camera_for_run
+    from stages.calibration import CONSTANTS, camera_for_run
     from stages.capture import open_source
     from stages.self_calibration import HeadFootCollector, HeightPrior, self_calibrate
 
@@ -61,8 +61,8 @@ def main(args: argparse.Namespace, config) -> int:
         camera = camera_for_run(intrinsics_config, width, height)
         # A calibration file's pose is dropped too; the network's scale-free heights are taken
         # at an assumed camera height: they only tell what stands above the ground.
-        camera = dataclasses.replace(camera, R=None, t=None, height_m=ASSUMED_CAMERA_HEIGHT_M, source="none",
-                                     pose_from="")
+        camera = dataclasses.replace(camera, R=None, t=None, height_m=CONSTANTS.assumed_camera_height_m,
+                                     source="none", pose_from="")
         chain = build_stage_chain(config, camera, assumed_camera_ok=True)
     except HeightpipeError:
         source.close()

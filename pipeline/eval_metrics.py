@@ -366,10 +366,21 @@ def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames:
 # --------------------------------------------------------------------------------------------
 
 MISS_KINDS = ("tracked", "detected, no track", "merged with others", "box off", "not detected")
-# A detection overlapping a truth box at least this much (IoU) is about that object, if off.
-MISS_NEAR_IOU = 0.2
-# A detection covering this share of another object's box holds that object too.
-MISS_COVER_SHARE = 0.3
+
+
+@dataclass(frozen=True)
+class MissConstants:
+    """How a miss is told apart (the rule is in docs/design.md, Configuration; ``MATCH_IOU`` and
+    ``HOTA_ALPHAS`` are the published metrics' definitions, not choices of ours)."""
+
+    miss_near_iou: float = 0.2
+    """A detection overlapping a truth box at least this much (IoU) is about that object, if off:
+    below the 0.5 a match needs, above what a neighbour's box reaches."""
+    miss_cover_share: float = 0.3
+    """A detection covering this share of another object's box holds that object too."""
+
+
+CONSTANTS = MissConstants()
 
 
 def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: float = 0.0) -> dict[str, dict]:
@@ -400,10 +411,10 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
                     kind = "tracked"
                 elif overlap >= MATCH_IOU:
                     kind = "detected, no track"
-                elif overlap >= MISS_NEAR_IOU:
+                elif overlap >= CONSTANTS.miss_near_iou:
                     areas = np.array([b[2] * b[3] for b in visible], dtype=float)
                     cover = intersection_matrix(visible, [detections[best]])[:, 0] / np.maximum(areas, 1e-9)
-                    kind = "merged with others" if (cover > MISS_COVER_SHARE).sum() >= 2 else "box off"
+                    kind = "merged with others" if (cover > CONSTANTS.miss_cover_share).sum() >= 2 else "box off"
                 else:
                     kind = "not detected"
                 h = truth.box[3]

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from core.config import Config
+from core.packets import NETWORK
 
 # Generator classes in the tracker's coarse terms.
 COARSE_CLASS = {"pedestrian": "person", "cyclist": "cyclist", "car": "vehicle", "van": "vehicle",
@@ -162,7 +163,7 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
                     tracks=[OutputBox(t.track_id, tuple(map(float, t.box)), t.height_m, t.height_std_m,
                                       t.cls, t.height_source, t.updated)
                             for t in packet.tracks if t.confirmed],
-                    detections=[DetectionBox(tuple(map(float, d.box)), d.height_m) for d in packet.detections],
+                    detections=[DetectionBox(tuple(map(float, d.box)), d.height(NETWORK)) for d in packet.detections],
                 ))
     finally:
         if sink is not None:

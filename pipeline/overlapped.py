@@ -31,8 +31,18 @@ from pipeline.stage_chain import StageChain
 
 NETWORK_STAGES = ("undistortion", "ground", "height", "heights")
 """Stages run on the network thread: the network and what must happen to the frame before it."""
-POLL_S = 0.1
-"""How often a waiting thread looks whether the run was stopped."""
+
+
+@dataclass(frozen=True)
+class OverlappedConstants:
+    """The threads' fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    poll_s: float = 0.1
+    """How often a waiting thread looks whether the run was stopped: a stop is felt at once,
+    the checks cost nothing."""
+
+
+CONSTANTS = OverlappedConstants()
 
 
 class _End:
@@ -107,7 +117,7 @@ class OverlappedChain:
                 thread.join()
             # A live capture may sit in a read until the stream's timeout: it is a daemon and
             # stops at its next frame; a file's returns within one poll.
-            threads[0].join(timeout=None if not self.live else 2 * POLL_S)
+            threads[0].join(timeout=None if not self.live else 2 * CONSTANTS.poll_s)
 
     def _capture(self, frames: Iterable[Frame], outbox: queue.Queue) -> None:
         try:
@@ -145,7 +155,7 @@ class OverlappedChain:
         """Waits for room; False if the run was stopped first."""
         while not self._stop.is_set():
             try:
-                outbox.put(item, timeout=POLL_S)
+                outbox.put(item, timeout=CONSTANTS.poll_s)
                 return True
             except queue.Full:
                 continue
@@ -155,7 +165,7 @@ class OverlappedChain:
         """The next item; None if the run was stopped first."""
         while not self._stop.is_set():
             try:
-                return inbox.get(timeout=POLL_S)
+                return inbox.get(timeout=CONSTANTS.poll_s)
             except queue.Empty:
                 continue
         return None

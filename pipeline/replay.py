@@ -89,7 +89,7 @@ def replay_mcap(path: Path, save: Path | None, ground_overlay: bool = False,
                 web_url: str | None = None) -> ReplayResult:
     """Logs every frame of ``path`` to a new rerun recording: ``save`` (.rrd), the web viewer
     server at ``web_url``, or a spawned viewer."""
-    from stages.rerun_sink import (VIEWER_MEMORY_LIMIT, RerunFrameLogger, close_recording,
+    from stages.rerun_sink import (CONSTANTS, RerunFrameLogger, close_recording,
                                    has_display, heightpipe_blueprint, open_recording)
     import rerun as rr
 
@@ -111,7 +111,7 @@ def replay_mcap(path: Path, save: Path | None, ground_overlay: bool = False,
     elif web_url is not None:
         rec.set_sinks(rr.GrpcSink(web_url), default_blueprint=heightpipe_blueprint())
     else:
-        rec.spawn(memory_limit=VIEWER_MEMORY_LIMIT, default_blueprint=heightpipe_blueprint())
+        rec.spawn(memory_limit=CONSTANTS.viewer_memory_limit, default_blueprint=heightpipe_blueprint())
     logger = RerunFrameLogger(rec, ground_overlay=ground_overlay)
     count, error = 0, ""
     try:

@@ -21,13 +21,25 @@ import sys
 import tempfile
 import time
 import urllib.parse
+from dataclasses import dataclass
 from pathlib import Path
 
 from core.config import WebConfig
 from core.errors import ConfigError, HeightpipeError
 from stages.rerun_sink import web_grpc_url
 
-START_TIMEOUT_S = 20.0
+
+
+@dataclass(frozen=True)
+class WebViewConstants:
+    """The web view's fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    start_timeout_s: float = 20.0
+    """How long the viewer server may take to open its ports before the run gives up: a cold
+    start of the ``rerun`` binary on a loaded box takes seconds."""
+
+
+CONSTANTS = WebViewConstants()
 
 
 def _rerun_executable() -> str:
@@ -112,7 +124,7 @@ class WebViewer:
 
     def _wait_until_listening(self) -> None:
         local = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(self.config.bind, self.config.bind)
-        deadline = time.monotonic() + START_TIMEOUT_S
+        deadline = time.monotonic() + CONSTANTS.start_timeout_s
         while time.monotonic() < deadline:
             if self._process.poll() is not None:
                 self._log.seek(0)
@@ -123,7 +135,7 @@ class WebViewer:
                 return
             time.sleep(0.1)
         self.stop()
-        raise HeightpipeError(f"the rerun web viewer server did not start within {START_TIMEOUT_S:.0f} s")
+        raise HeightpipeError(f"the rerun web viewer server did not start within {CONSTANTS.start_timeout_s:.0f} s")
 
     def wait_for_ctrl_c(self) -> None:
         """Keeps serving (the finished recording stays viewable) until Ctrl-C or SIGTERM."""

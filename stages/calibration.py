@@ -47,9 +47,19 @@ from core.config import CameraConfig
 from core.errors import ConfigError
 from core.packets import CameraInfo
 
-# Camera height assumed when nothing is known, so that a scale-free network output still
-# becomes metres; such a camera has source "none" and every height it gives is flagged.
-ASSUMED_CAMERA_HEIGHT_M = 5.0
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationConstants:
+    """The calibration maths' fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    assumed_camera_height_m: float = 5.0
+    """Camera height assumed when nothing is known, so that a scale-free network output still
+    becomes metres: a typical CCTV mast (the generator's cameras stand at 3.5-9.2 m). Such a
+    camera has source "none" and every height it gives is flagged."""
+
+
+CONSTANTS = CalibrationConstants()
 
 # A level camera looking along world +y: camera x = world x, camera y = -world z, camera z = world y.
 _LEVEL_CAMERA = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -260,7 +270,7 @@ def camera_for_run(config: CameraConfig, width: int, height: int) -> CameraInfo:
     if config.height_m > 0:
         return CameraInfo(width=width, height=height, K=K, dist=dist, height_m=config.height_m,
                           source="camera-height", lens_from_file=bool(config.calibration))
-    return CameraInfo(width=width, height=height, K=K, dist=dist, height_m=ASSUMED_CAMERA_HEIGHT_M,
+    return CameraInfo(width=width, height=height, K=K, dist=dist, height_m=CONSTANTS.assumed_camera_height_m,
                       source="none", lens_from_file=bool(config.calibration))
 
 

@@ -22,8 +22,19 @@ from core.packets import Frame
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"}
 STREAM_PREFIXES = ("rtsp://", "rtsps://", "http://", "https://", "rtmp://", "udp://", "tcp://")
-# A video read failing this many times in a row is taken as its end (truncated or corrupt tail).
-MAX_CONSECUTIVE_DECODE_FAILURES = 25
+
+
+@dataclass(frozen=True)
+class CaptureConstants:
+    """Capture's fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    max_consecutive_decode_failures: int = 25
+    """A video read failing this many times in a row is taken as its end (truncated or corrupt
+    tail): about a second of video."""
+
+
+CONSTANTS = CaptureConstants()
+
 # Markers _read() yields in place of an image.
 SKIPPED = np.zeros((0, 0, 3), np.uint8)
 FAILED = np.zeros((0, 0, 3), np.uint8)
@@ -177,7 +188,7 @@ class VideoFileSource(FrameSource):
             expected = self.stats.expected or 0
             if index >= expected:
                 return
-            if failures_in_row >= MAX_CONSECUTIVE_DECODE_FAILURES:
+            if failures_in_row >= CONSTANTS.max_consecutive_decode_failures:
                 self.stats.failed += expected - index
                 return
             yield index, 0.0, FAILED

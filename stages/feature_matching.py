@@ -9,39 +9,52 @@ ones the tracker uses for association votes and the height-consistency check.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
 from core.config import GroundConfig, MatchingConfig
 from core.packets import FeatureMatches, FramePacket
 
-FORWARD_BACKWARD_MAX_PX = 1.0
-# Share of the ORB budget spent on above-ground regions: movers are small but matter most.
-OBJECT_FEATURE_SHARE = 0.5
-ORB_LEVELS = 4
-# Fewer background points than this: the background is hidden (a bus filling the view) and
-# RANSAC would fit a few shadow or mismatch points (generator: a 300 px "shake" at 6 points that
-# threw every track off its object). The camera is then taken to be still.
-MIN_BACKGROUND_POINTS = 12
-# The camera is fixed: a motion is accepted only if, within this tolerance (pixels of the
-# matching image), it explains clearly more background points than standing still does
-# (still points at least this share of the motion's: the camera is taken to be still). A
-# vehicle's shadow creeping over the ground fitted 2 px "shakes" at RANSAC's 3 px tolerance.
-STILL_TOLERANCE_PX = 1.0
-STILL_PREFERENCE = 0.9
+
+@dataclass(frozen=True)
+class FeatureMatchingConstants:
+    """Feature matching's fixed numbers: properties of the method, not of a camera or a
+    scene (those are in ``[matching]``; the rule is in docs/design.md, Configuration)."""
+
+    # A point tracked forward and back again must land within this of where it started (LK's
+    # forward-backward check): a point that drifts further was not one texture in both frames.
+    forward_backward_max_px: float = 1.0
+    # Share of the ORB budget spent on above-ground regions: movers are small but matter most.
+    object_feature_share: float = 0.5
+    # Four pyramid levels instead of ORB's eight: consecutive frames barely change scale, and the
+    # coarse levels cost time for corners LK cannot use anyway.
+    orb_levels: int = 4
+    # Fewer background points than this: the background is hidden (a bus filling the view) and
+    # RANSAC would fit a few shadow or mismatch points (generator: a 300 px "shake" at 6 points that
+    # threw every track off its object). The camera is then taken to be still.
+    min_background_points: int = 12
+    # The camera is fixed: a motion is accepted only if, within this tolerance (pixels of the
+    # matching image), it explains clearly more background points than standing still does
+    # (still points at least this share of the motion's: the camera is taken to be still). A
+    # vehicle's shadow creeping over the ground fitted 2 px "shakes" at RANSAC's 3 px tolerance.
+    still_tolerance_px: float = 1.0
+    still_preference: float = 0.9
+
+
+CONSTANTS = FeatureMatchingConstants()
 
 
 class FeatureMatcher:
     def __init__(self, config: MatchingConfig, ground: GroundConfig):
         self.config = config
         self.height_threshold_m = ground.height_threshold_m
-        # Four pyramid levels instead of ORB's eight: consecutive frames barely change scale,
-        # and the coarse levels cost time for corners LK cannot use anyway.
-        self.orb_scene = cv2.ORB_create(nfeatures=int(config.orb_features * (1 - OBJECT_FEATURE_SHARE)),
-                                        nlevels=ORB_LEVELS)
-        self.orb_objects = cv2.ORB_create(nfeatures=int(config.orb_features * OBJECT_FEATURE_SHARE),
-                                          nlevels=ORB_LEVELS)
-        self.orb_describe = cv2.ORB_create(nlevels=ORB_LEVELS)
+        self.orb_scene = cv2.ORB_create(nfeatures=int(config.orb_features * (1 - CONSTANTS.object_feature_share)),
+                                        nlevels=CONSTANTS.orb_levels)
+        self.orb_objects = cv2.ORB_create(nfeatures=int(config.orb_features * CONSTANTS.object_feature_share),
+                                          nlevels=CONSTANTS.orb_levels)
+        self.orb_describe = cv2.ORB_create(nlevels=CONSTANTS.orb_levels)
         self.lk_params = dict(winSize=(config.lk_window, config.lk_window), maxLevel=config.lk_levels,
                               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
         self._prev_gray: np.ndarray | None = None
@@ -90,7 +103,7 @@ class FeatureMatcher:
         curr, status, _ = cv2.calcOpticalFlowPyrLK(self._prev_gray, gray, prev, None, **self.lk_params)
         back, status_back, _ = cv2.calcOpticalFlowPyrLK(gray, self._prev_gray, curr, None, **self.lk_params)
         fb_error = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
-        keep = (status.ravel() == 1) & (status_back.ravel() == 1) & (fb_error < FORWARD_BACKWARD_MAX_PX)
+        keep = (status.ravel() == 1) & (status_back.ravel() == 1) & (fb_error < CONSTANTS.forward_backward_max_px)
         keep &= self._descriptors_agree(gray, curr.reshape(-1, 2), keep)
         prev_pts = prev.reshape(-1, 2)[keep]
         curr_pts = curr.reshape(-1, 2)[keep]
@@ -147,14 +160,14 @@ class FeatureMatcher:
         identity = np.eye(2, 3, dtype=np.float32)
         threshold = self.config.ransac_threshold_px
         moved = np.linalg.norm(curr_pts - prev_pts, axis=1)
-        if len(prev_pts) < MIN_BACKGROUND_POINTS:
+        if len(prev_pts) < CONSTANTS.min_background_points:
             return identity, moved <= threshold
         matrix, inliers = cv2.estimateAffinePartial2D(
             prev_pts, curr_pts, method=cv2.RANSAC, ransacReprojThreshold=threshold)
         if matrix is None:
             return identity, moved <= threshold
-        tolerance = min(threshold, STILL_TOLERANCE_PX)
+        tolerance = min(threshold, CONSTANTS.still_tolerance_px)
         residual = np.linalg.norm(prev_pts @ matrix[:, :2].T + matrix[:, 2] - curr_pts, axis=1)
-        if (moved <= tolerance).sum() >= STILL_PREFERENCE * (residual <= tolerance).sum():
+        if (moved <= tolerance).sum() >= CONSTANTS.still_preference * (residual <= tolerance).sum():
             return identity, moved <= threshold
         return matrix.astype(np.float32), inliers.ravel().astype(bool)

@@ -15,11 +15,23 @@ after changing this module:  python -m stages.foxglove_layout docs/foxglove_layo
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import foxglove.layouts as fl
 
-HEIGHT_MAP_MAX_MM = 5000.0
+
+
+@dataclass(frozen=True)
+class FoxgloveLayoutConstants:
+    """The layout's fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    height_map_max_mm: float = 5000.0
+    """Top of the height map's colour scale: 5 m holds people, cars and vans in distinct colours
+    (a bus's roof saturates)."""
+
+
+CONSTANTS = FoxgloveLayoutConstants()
 
 
 def heightpipe_layout() -> fl.Layout:
@@ -30,7 +42,7 @@ def heightpipe_layout() -> fl.Layout:
                          "/camera/matches": fl.ImageAnnotationSettings(visible=False)})))
     height_map = fl.ImagePanel(title="Height map (0-5 m)", config=fl.ImageConfig(
         image_mode=fl.ImageModeConfig(image_topic="/camera/height", color_mode="colormap",
-                                      color_map="turbo", min_value=0.0, max_value=HEIGHT_MAP_MAX_MM)))
+                                      color_map="turbo", min_value=0.0, max_value=CONSTANTS.height_map_max_mm)))
     heights = fl.PlotPanel(title="Height per track (m)", config=fl.PlotConfig(
         paths=[fl.PlotSeries(value="/tracks.tracks[:]{confirmed==true}", dynamic_label_field="id",
                              dynamic_value_field="height_m", label="track", show_line=True,

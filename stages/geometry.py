@@ -29,51 +29,65 @@ reject the geometry against it.
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from core.config import CameraConfig
-from core.packets import CameraInfo, Detection, FramePacket
+from core.packets import BOX, GEOMETRY, NETWORK, CameraInfo, Detection, FramePacket, Measurement
 from stages.calibration import has_distortion, heights_from_foot_top, is_calibrated, undistort_pixels
 from stages.vehicle_geometry import vehicle_box
 
-# Horizontal distance between an object's ground contact (the bottom of its blob) and the part
-# that is its top in the image. The geometry assumes the top is vertically above the foot: for a
-# person that holds to a few centimetres, for a car seen from above the top of the blob is the far
-# edge of the roof, metres behind the front bumper, and the height comes out too large.
-HORIZONTAL_EXTENT_M = {"person": 0.3, "cyclist": 1.2, "vehicle": 4.5, "other": 1.0}
-# Network scale: ratios from this many whole-person detections at least, the last this many kept.
-SCALE_MIN_SAMPLES = 30
-SCALE_WINDOW = 1000
-# The network's relative height error before its scale is known in this scene: on the generator's
-# dev tracking set (data/trk_dev) the shipped model reads people at 0.48x their height (log-ratio
-# rms 0.77); on Oxford at ~0.8x. Half the height is an honest std there, not the 0.15 m base noise.
-NETWORK_PRIOR_SCALE_NOISE = 0.5
-# Geometry heights outside this range are failures (foot near the horizon, top ray grazing).
-PLAUSIBLE_HEIGHT_M = (0.05, 30.0)
-# Classes in metres (see ``metric_class``): wider than a bicycle is long, or taller than anyone
-# and wider than a person, is a vehicle; a person is at most this wide (a stride, arms swinging);
-# upright objects between these heights are people or cyclists.
-VEHICLE_MIN_WIDTH_M = 1.8
-PERSON_MAX_WIDTH_M = 1.3
-UPRIGHT_HEIGHT_M = (0.8, 2.3)
-# Objects at least this wide at their foot get the vehicle geometry too (the tracker picks the
-# reading that fits the track's class, which may differ from this frame's).
-VEHICLE_OUTLINE_MIN_WIDTH_M = 1.4
-# The vehicle geometry's error beyond its pixels: a footprint width from a prior, the clearance
-# under the body, a car's cabin taken as a share of its body. Measured with the shipped model's
-# masks on held-out generator sequences (data/trk_val20; the train-split data/trk_dev20 alike):
-# per detection a robust std of 0.20 m (trk_dev20: 0.43), per object (repeating frame after
-# frame) 0.22 m (0.27); 91 % (88 %) of readings within 2 stated std.
-VEHICLE_SHAPE_NOISE_M = 0.3
-VEHICLE_SHAPE_BIAS_M = 0.2
-# Added (in quadrature) where only the vehicle's end was seen and its length is assumed: a van's
-# roof runs 1-1.5 m further back than a car's cabin.
-VEHICLE_END_ON_NOISE_M = 0.3
+
+@dataclass(frozen=True)
+class GeometryConstants:
+    """The geometry's fixed numbers: properties of the method, not of a camera or a scene
+    (those are in ``[camera]``; the rule is in docs/design.md, Configuration)."""
+
+    # Horizontal distance between an object's ground contact (the bottom of its blob) and the part
+    # that is its top in the image. The geometry assumes the top is vertically above the foot: for a
+    # person that holds to a few centimetres, for a car seen from above the top of the blob is the far
+    # edge of the roof, metres behind the front bumper, and the height comes out too large.
+    horizontal_extent_m: dict[str, float] = field(
+        default_factory=lambda: {"person": 0.3, "cyclist": 1.2, "vehicle": 4.5, "other": 1.0})
+    # Network scale: ratios from this many whole-person detections at least (a median of 30 is sure
+    # to a few per cent), the last this many kept (a scene's lighting changes over hours).
+    scale_min_samples: int = 30
+    scale_window: int = 1000
+    # The network's relative height error before its scale is known in this scene: on the generator's
+    # dev tracking set (data/trk_dev) the shipped model reads people at 0.48x their height (log-ratio
+    # rms 0.77); on Oxford at ~0.8x. Half the height is an honest std there, not the 0.15 m base noise.
+    network_prior_scale_noise: float = 0.5
+    # Geometry heights outside this range are failures (foot near the horizon, top ray grazing):
+    # nothing on a street is under 5 cm or over 30 m tall.
+    plausible_height_m: tuple[float, float] = (0.05, 30.0)
+    # Classes in metres (see ``metric_class``): wider than a bicycle is long, or taller than anyone
+    # and wider than a person, is a vehicle; a person is at most this wide (a stride, arms swinging);
+    # upright objects between these heights are people or cyclists.
+    vehicle_min_width_m: float = 1.8
+    person_max_width_m: float = 1.3
+    upright_height_m: tuple[float, float] = (0.8, 2.3)
+    # Objects at least this wide at their foot get the vehicle geometry too (the tracker picks the
+    # reading that fits the track's class, which may differ from this frame's).
+    vehicle_outline_min_width_m: float = 1.4
+    # The vehicle geometry's error beyond its pixels: a footprint width from a prior, the clearance
+    # under the body, a car's cabin taken as a share of its body. Measured with the shipped model's
+    # masks on held-out generator sequences (data/trk_val20; the train-split data/trk_dev20 alike):
+    # per detection a robust std of 0.20 m (trk_dev20: 0.43), per object (repeating frame after
+    # frame) 0.22 m (0.27); 91 % (88 %) of readings within 2 stated std.
+    vehicle_shape_noise_m: float = 0.3
+    vehicle_shape_bias_m: float = 0.2
+    # Added (in quadrature) where only the vehicle's end was seen and its length is assumed: a van's
+    # roof runs 1-1.5 m further back than a car's cabin.
+    vehicle_end_on_noise_m: float = 0.3
+
+
+CONSTANTS = GeometryConstants()
 
 
 class GeometryMeasurer:
-    """Sets ``geometry_height_m``, ``geometry_noise_m`` and ``ground_xy_m`` of each detection.
+    """Adds each whole detection's ``GEOMETRY`` height (and a vehicle's ``BOX`` height), its class
+    in metres, its ground point, and a lower bound on its height where its foot is cut.
 
     Does nothing unless ``packet.camera`` has a pose (source "calibration" or "self").
     Points are undistorted here when the camera still has distortion (no Undistorter ran).
@@ -122,41 +136,42 @@ class GeometryMeasurer:
             if whole[i] and np.isfinite(heights[i]) and np.isfinite(widths[i]) and heights[i] > 0:
                 # The network's height classed people it reads at half their height as "other";
                 # the calibrated camera measures both height and width in metres.
-                detection.cls = metric_class(float(heights[i]), float(widths[i]))
+                detection.classify(metric_class(float(heights[i]), float(widths[i])), "geometry")
             height = heights[i]
             if (not foot_ok[i] and np.isfinite(height) and 0.0 < height < camera.height_m
-                    and not widths[i] >= VEHICLE_MIN_WIDTH_M):
+                    and not widths[i] >= CONSTANTS.vehicle_min_width_m):
                 # The top's ray descends (it is below the horizon): a nearer foot means a taller object.
                 # Not for a vehicle-wide one: its top is the roof's far edge, metres behind the foot
                 # (generator, a car coming into view at the bottom: bounds of 3.2-4.4 m for 1.5 m).
-                detection.geometry_min_height_m = float(height)
+                detection.min_height_m = float(height)
             if not (whole[i] and np.isfinite(height) and np.isfinite(noise[i])
-                    and PLAUSIBLE_HEIGHT_M[0] <= height <= PLAUSIBLE_HEIGHT_M[1]):
+                    and CONSTANTS.plausible_height_m[0] <= height <= CONSTANTS.plausible_height_m[1]):
                 continue
-            extent = HORIZONTAL_EXTENT_M.get(detection.cls, HORIZONTAL_EXTENT_M["other"])
+            extent = CONSTANTS.horizontal_extent_m.get(detection.cls, CONSTANTS.horizontal_extent_m["other"])
             shape_error = self._top_offset_error(camera.height_m, height, distance[i], extent)
             scale_error = height * self.camera_height_std_m / camera.height_m
-            detection.geometry_height_m = float(height)
-            detection.geometry_noise_m = float(np.sqrt(noise[i] ** 2 + shape_error ** 2 + scale_error ** 2))
-            detection.geometry_bias_m = float(noise[i])
+            detection.add_height(GEOMETRY, Measurement(
+                float(height), float(np.sqrt(noise[i] ** 2 + shape_error ** 2 + scale_error ** 2)),
+                source="geometry", bias_m=float(noise[i])))
         if has_distortion(camera):
             return   # outlines are in raw pixels; the vehicle geometry needs undistorted ones
         for i, detection in enumerate(detections):
-            if whole[i] and detection.outline is not None and widths[i] >= VEHICLE_OUTLINE_MIN_WIDTH_M:
+            if whole[i] and detection.outline is not None and widths[i] >= CONSTANTS.vehicle_outline_min_width_m:
                 self._measure_vehicle(camera, detection)
 
     def _measure_vehicle(self, camera: CameraInfo, detection: Detection) -> None:
         """Height of the box on the ground under the outline, noise from its top rows' pixel noise."""
         fitted = vehicle_box(camera, detection.outline, (detection.box[0], detection.box[1]), self.point_noise_px)
-        if fitted is None or not PLAUSIBLE_HEIGHT_M[0] <= fitted.height_m <= camera.height_m:
+        if fitted is None or not CONSTANTS.plausible_height_m[0] <= fitted.height_m <= camera.height_m:
             return
         pixel = fitted.pixel_noise_m
         scale_error = fitted.height_m * self.camera_height_std_m / camera.height_m
-        end_on = VEHICLE_END_ON_NOISE_M if fitted.length_assumed else 0.0
-        shape, shape_bias = np.hypot(VEHICLE_SHAPE_NOISE_M, end_on), np.hypot(VEHICLE_SHAPE_BIAS_M, end_on)
-        detection.vehicle_height_m = fitted.height_m
-        detection.vehicle_noise_m = float(np.sqrt(pixel ** 2 + shape ** 2 + scale_error ** 2))
-        detection.vehicle_bias_m = float(np.hypot(pixel, shape_bias))
+        end_on = CONSTANTS.vehicle_end_on_noise_m if fitted.length_assumed else 0.0
+        shape = np.hypot(CONSTANTS.vehicle_shape_noise_m, end_on)
+        shape_bias = np.hypot(CONSTANTS.vehicle_shape_bias_m, end_on)
+        noise = float(np.sqrt(pixel ** 2 + shape ** 2 + scale_error ** 2))
+        detection.add_height(BOX, Measurement(fitted.height_m, noise, source="vehicle geometry",
+                                              bias_m=float(np.hypot(pixel, shape_bias))))
         detection.vehicle_axis_xy = fitted.axis_xy
         detection.vehicle_length_assumed = fitted.length_assumed
 
@@ -194,11 +209,11 @@ def metric_class(height_m: float, width_m: float) -> str:
     from the side, a car's front or flank. A vehicle's geometry height reads high (its blob's top
     is the far roof edge), which only pushes it further from the upright classes.
     """
-    if width_m >= VEHICLE_MIN_WIDTH_M or height_m > UPRIGHT_HEIGHT_M[1]:
+    if width_m >= CONSTANTS.vehicle_min_width_m or height_m > CONSTANTS.upright_height_m[1]:
         return "vehicle"
-    if height_m < UPRIGHT_HEIGHT_M[0]:
+    if height_m < CONSTANTS.upright_height_m[0]:
         return "other"
-    return "person" if width_m < PERSON_MAX_WIDTH_M else "cyclist"
+    return "person" if width_m < CONSTANTS.person_max_width_m else "cyclist"
 
 
 def _widths_at_ground(camera: CameraInfo, ground_xy: np.ndarray, widths_px: np.ndarray) -> np.ndarray:
@@ -214,18 +229,18 @@ class NetworkScale:
     """Running median of geometry / network height on whole people; rescales network heights.
 
     Only people: their top is above their foot, so their geometry height is sound; a vehicle's
-    is not (see ``HORIZONTAL_EXTENT_M``). Nothing changes until ``SCALE_MIN_SAMPLES`` ratios are in.
-    Vehicles keep their network height: the shipped model reads thin people far lower than big
+    is not (see ``horizontal_extent_m``). Nothing changes until ``scale_min_samples`` ratios
+    are in. Vehicles keep their network height: the shipped model reads thin people far lower than big
     objects (trk_test40: rescaled like people, vehicles' single-frame median error went
     44 -> 62 cm; left alone, 49 cm).
     """
 
     def __init__(self):
-        self.log_ratios: deque[float] = deque(maxlen=SCALE_WINDOW)
+        self.log_ratios: deque[float] = deque(maxlen=CONSTANTS.scale_window)
 
     @property
     def scale(self) -> float:
-        if len(self.log_ratios) < SCALE_MIN_SAMPLES:
+        if len(self.log_ratios) < CONSTANTS.scale_min_samples:
             return 1.0
         return float(np.exp(np.median(self.log_ratios)))
 
@@ -234,19 +249,24 @@ class NetworkScale:
         """Relative std of the network's scale: a prior until it is measured, then the median's
         standard error (1.2533 x 1.4826 MAD / sqrt(n))."""
         n = len(self.log_ratios)
-        if n < SCALE_MIN_SAMPLES:
-            return NETWORK_PRIOR_SCALE_NOISE
+        if n < CONSTANTS.scale_min_samples:
+            return CONSTANTS.network_prior_scale_noise
         ratios = np.asarray(self.log_ratios)
         return float(1.2533 * 1.4826 * np.median(np.abs(ratios - np.median(ratios))) / np.sqrt(n))
 
     def rescale(self, detections: list[Detection]) -> None:
+        """Learn from this frame's whole people, then replace each network height (vehicles' aside)
+        by the rescaled one, its noise grown by the scale's uncertainty (source "geometry scale")."""
         for d in detections:
-            if (d.cls == "person" and d.geometry_height_m is not None and np.isfinite(d.height_m)
-                    and d.height_m > 0):
-                self.log_ratios.append(float(np.log(d.geometry_height_m / d.height_m)))
+            network, geometry = d.heights.get(NETWORK), d.heights.get(GEOMETRY)
+            if (d.cls == "person" and geometry is not None and network is not None
+                    and np.isfinite(network.value_m) and network.value_m > 0):
+                self.log_ratios.append(float(np.log(geometry.value_m / network.value_m)))
         scale, relative = self.scale, self.scale_noise
         for d in detections:
-            if d.cls == "vehicle":
+            network = d.heights.get(NETWORK)
+            if d.cls == "vehicle" or network is None:
                 continue      # learnt on thin people; the network reads big objects far less low
-            d.height_m *= scale
-            d.height_noise_m = float(np.hypot(d.height_noise_m * scale, relative * d.height_m))
+            height = network.value_m * scale
+            noise = float(np.hypot(network.noise_m * scale, relative * height))
+            d.add_height(NETWORK, Measurement(height, noise, source="geometry scale", bias_m=network.bias_m))

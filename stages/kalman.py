@@ -9,10 +9,11 @@ Two independent filters per track:
   applied to this state (``warp``), never to the height.
 * ``HeightFilter``: the object's height in metres, a random walk with near-zero process noise
   (objects do not grow), so every frame is one more measurement of the same number; beside it,
-  each channel's (network, foot/top geometry, vehicle box) bias on this object, which frames
-  do not average away.
+  each channel's (network, foot/top geometry, vehicle box, any other) bias on this object,
+  which frames do not average away.
   A second measurement channel (geometry) is just a second ``update`` in the same frame
-  (sequential update: independent measurements may be applied one after the other).
+  (sequential update: independent measurements may be applied one after the other); a channel
+  the filter has not seen before gets a bias state of its own at its first measurement.
 
 The algebra is filterpy's ``KalmanFilter`` (Joseph-form covariance update); only the
 matrices are set here.
@@ -26,15 +27,22 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from core.config import TrackingConfig
+from core.packets import BOX, GEOMETRY, NETWORK
 
 Box = tuple[float, float, float, float]
 
-# DeepSORT / BoT-SORT: position noise 1/20 of the box size, velocity noise 1/160 of it per frame.
-STD_WEIGHT_POSITION = 1.0 / 20.0
-STD_WEIGHT_VELOCITY = 1.0 / 160.0
 
-# 95 % quantile of chi-square with 4 degrees of freedom (box measurement): the gating distance.
-CHI2_95_4DOF = 9.4877
+@dataclass(frozen=True)
+class KalmanConstants:
+    """The box filter's noise: DeepSORT's weights (a 20 px and a 200 px box are equally sure
+    in relative terms)."""
+
+    # DeepSORT / BoT-SORT: position noise 1/20 of the box size, velocity noise 1/160 of it per frame.
+    std_weight_position: float = 1.0 / 20.0
+    std_weight_velocity: float = 1.0 / 160.0
+
+
+CONSTANTS = KalmanConstants()
 
 
 def box_to_z(box: Box) -> np.ndarray:
@@ -67,10 +75,10 @@ class MotionFilter:
         kf.x = np.zeros((8, 1))
         kf.x[:4] = box_to_z(box)
         w, h = kf.x[2, 0], kf.x[3, 0]
-        std = np.array([2 * STD_WEIGHT_POSITION * w, 2 * STD_WEIGHT_POSITION * h,
-                        2 * STD_WEIGHT_POSITION * w, 2 * STD_WEIGHT_POSITION * h,
-                        10 * STD_WEIGHT_VELOCITY * w, 10 * STD_WEIGHT_VELOCITY * h,
-                        10 * STD_WEIGHT_VELOCITY * w, 10 * STD_WEIGHT_VELOCITY * h])
+        std = np.array([2 * CONSTANTS.std_weight_position * w, 2 * CONSTANTS.std_weight_position * h,
+                        2 * CONSTANTS.std_weight_position * w, 2 * CONSTANTS.std_weight_position * h,
+                        10 * CONSTANTS.std_weight_velocity * w, 10 * CONSTANTS.std_weight_velocity * h,
+                        10 * CONSTANTS.std_weight_velocity * w, 10 * CONSTANTS.std_weight_velocity * h])
         kf.P = np.diag(std ** 2)
         self.kf = kf
 
@@ -84,10 +92,10 @@ class MotionFilter:
 
     def predict(self) -> None:
         w, h = max(self.kf.x[2, 0], 1.0), max(self.kf.x[3, 0], 1.0)
-        std = np.array([STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
-                        STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
-                        STD_WEIGHT_VELOCITY * w, STD_WEIGHT_VELOCITY * h,
-                        STD_WEIGHT_VELOCITY * w, STD_WEIGHT_VELOCITY * h])
+        std = np.array([CONSTANTS.std_weight_position * w, CONSTANTS.std_weight_position * h,
+                        CONSTANTS.std_weight_position * w, CONSTANTS.std_weight_position * h,
+                        CONSTANTS.std_weight_velocity * w, CONSTANTS.std_weight_velocity * h,
+                        CONSTANTS.std_weight_velocity * w, CONSTANTS.std_weight_velocity * h])
         self.kf.predict(Q=np.diag(std ** 2))
         # A box cannot shrink below a pixel; a negative size would flip the box.
         self.kf.x[2:4] = np.maximum(self.kf.x[2:4], 1.0)
@@ -102,8 +110,8 @@ class MotionFilter:
 
     def measurement_noise(self, noise_scale: float = 1.0) -> np.ndarray:
         w, h = max(self.kf.x[2, 0], 1.0), max(self.kf.x[3, 0], 1.0)
-        std = np.array([STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h,
-                        STD_WEIGHT_POSITION * w, STD_WEIGHT_POSITION * h]) * noise_scale
+        std = np.array([CONSTANTS.std_weight_position * w, CONSTANTS.std_weight_position * h,
+                        CONSTANTS.std_weight_position * w, CONSTANTS.std_weight_position * h]) * noise_scale
         return np.diag(std ** 2)
 
     def update(self, box: Box, noise_scale: float = 1.0) -> None:
@@ -140,15 +148,11 @@ class MotionFilter:
         self.kf.P = snapshot.P.copy()
 
 
-# Channels whose bias prior comes with their first measurement (see ``HeightFilter._start_bias``).
-GEOMETRY_CHANNELS = ("geometry", "box")
-
-
 class HeightFilter:
     """Object height in metres: a constant with a tiny random walk, plus each channel's bias on it.
 
     Measurements come through named channels ("network", "geometry" from a person's foot and
-    crown, "box" from a vehicle's outline); several in one frame are
+    crown, "box" from a vehicle's outline, or any channel a stage adds); several in one frame are
     applied one after the other (sequential update of independent measurements), and the
     filter remembers which channels have contributed (``source``).
 
@@ -156,10 +160,11 @@ class HeightFilter:
     low in every frame (its colours, its pose, the scene behind it stay the same); the geometry
     takes the same hair for the crown and the same shoes for the soles, a pixel or two off in
     every frame. Averaging frames converges on the wrong number with a shrinking std. The state
-    therefore holds each channel's bias beside the height, ``[H, b_n, b_g, b_box]``: a network
-    height measures ``H + b_n``, a geometry height ``H + b_g``. Each bias starts at 0 with its own
-    prior std (the network's ``bias_share`` of the height; a geometry's ``geometry_bias_factor``
-    times the per-object part of its first measurement's noise, its pixels, which shrinks with the
+    therefore holds each channel's bias beside the height, ``[H, b_n, b_g, b_box, ...]``: a network
+    height measures ``H + b_n``, a geometry height ``H + b_g``; a channel first seen later is
+    appended to the state then. Each bias starts at 0 with its own prior std (the network's
+    ``bias_share`` of the height; any other channel's ``geometry_bias_factor`` times the per-object
+    part of its first measurement's noise, for the geometry its pixels, which shrinks with the
     object's size in pixels) and stays constant.
     Frames then average only the white noise: the std never falls below what the biases allow,
     and where both channels measure, the height settles between them by their bias priors (the
@@ -167,8 +172,8 @@ class HeightFilter:
     network height (feet cut by the frame) is corrected by the learnt difference.
     """
 
-    CHANNEL_BIAS = {"network": 1, "geometry": 2, "box": 3}
-    """State index of each channel's bias."""
+    CHANNEL_BIAS = {NETWORK: 1, GEOMETRY: 2, BOX: 3}
+    """State index of the shipped channels' biases; other channels' follow as they come."""
 
     def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = "network",
                  bias_share: float = 0.0, geometry_bias_factor: float = 0.0, bias_std_m: float | None = None):
@@ -180,9 +185,12 @@ class HeightFilter:
         kf.Q = np.diag([process_noise_m ** 2, 0.0, 0.0, 0.0])
         self.kf = kf
         self.geometry_bias_factor = geometry_bias_factor
+        self.channel_bias = dict(self.CHANNEL_BIAS)
+        """State index of each channel's bias."""
         self.updates: dict[str, int] = {}
         self._start_bias(channel, std_m if bias_std_m is None else bias_std_m)
-        bias = self.CHANNEL_BIAS.get(channel)
+        kf = self.kf                      # grown by a bias state if the channel is a new one
+        bias = self.channel_bias.get(channel)
         if bias is not None:
             # z = H + b: the height is as unsure as the measurement and the bias together.
             variance = kf.P[bias, bias]
@@ -191,13 +199,26 @@ class HeightFilter:
         self.updates[channel] = 1
 
     def _start_bias(self, channel: str, bias_std_m: float) -> None:
-        """A geometry channel's first measurement sets its bias prior: it scales with the part of
-        its noise that repeats on this object (its pixels, a vehicle's shape; not the camera height
-        that every object and the network's scale share)"""
-        if channel in GEOMETRY_CHANNELS and not self.updates.get(channel):
-            bias = self.CHANNEL_BIAS[channel]
+        """Any channel but the network's sets its bias prior with its first measurement: it scales
+        with the part of its noise that repeats on this object (the geometry's pixels, a vehicle's
+        shape; not the camera height that every object and the network's scale share)"""
+        if channel != NETWORK and not self.updates.get(channel):
+            if channel not in self.channel_bias:
+                self._add_bias_state(channel)
+            bias = self.channel_bias[channel]
             self.kf.P[bias, :] = self.kf.P[:, bias] = 0.0
             self.kf.P[bias, bias] = (self.geometry_bias_factor * bias_std_m) ** 2
+
+    def _add_bias_state(self, channel: str) -> None:
+        """One more state, a new channel's bias: 0, uncorrelated, constant (its prior comes next)."""
+        n = self.kf.dim_x
+        grown = KalmanFilter(dim_x=n + 1, dim_z=1)
+        grown.x = np.vstack([self.kf.x, [[0.0]]])
+        grown.P = np.pad(self.kf.P, ((0, 1), (0, 1)))
+        grown.F = np.eye(n + 1)
+        grown.Q = np.pad(self.kf.Q, ((0, 1), (0, 1)))
+        self.kf = grown
+        self.channel_bias[channel] = n
 
     @property
     def source(self) -> str:
@@ -214,9 +235,11 @@ class HeightFilter:
         return float(np.sqrt(self.kf.P[0, 0]))
 
     def _row(self, channel: str) -> np.ndarray:
-        row = np.array([[1.0, 0.0, 0.0, 0.0]])
-        if channel in self.CHANNEL_BIAS:
-            row[0, self.CHANNEL_BIAS[channel]] = 1.0
+        """What the channel reads: the height plus its bias (no bias state yet: the height)."""
+        row = np.zeros((1, self.kf.dim_x))
+        row[0, 0] = 1.0
+        if channel in self.channel_bias:
+            row[0, self.channel_bias[channel]] = 1.0
         return row
 
     def predict(self) -> None:
@@ -232,7 +255,7 @@ class HeightFilter:
         row = self._row(channel)
         expected = float((row @ self.kf.x)[0, 0])
         variance = self.expected_std_m(channel) ** 2 + std_m ** 2
-        if channel in GEOMETRY_CHANNELS and not self.updates.get(channel):
+        if channel != NETWORK and not self.updates.get(channel):
             variance += (self.geometry_bias_factor * std_m) ** 2
         return abs(height_m - expected) / float(np.sqrt(variance))
 

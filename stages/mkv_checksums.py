@@ -9,10 +9,22 @@ docs/results.md). Reading the file once more and checking each cluster finds tho
 from __future__ import annotations
 
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
 SEGMENT, CLUSTER, CRC32 = 0x18538067, 0x1F43B675, 0xBF
-MAX_CLUSTER_BYTES = 1 << 28
+
+
+@dataclass(frozen=True)
+class MkvChecksumConstants:
+    """The checksum reader's fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    max_cluster_bytes: int = 1 << 28
+    """A cluster claiming more than this (256 MiB) is a corrupt size field, not seconds of
+    camera video: the reader stops rather than load it."""
+
+
+CONSTANTS = MkvChecksumConstants()
 
 
 def _vint(data: bytes, position: int, keep_marker: bool) -> tuple[int, int] | None:
@@ -70,7 +82,7 @@ def damaged_clusters(path: Path) -> list[tuple[int, int]]:
             if element is None:
                 break
             ident, start, size = element
-            if start + size > file_size or size > MAX_CLUSTER_BYTES:
+            if start + size > file_size or size > CONSTANTS.max_cluster_bytes:
                 break
             if ident == CLUSTER:
                 stream.seek(start)

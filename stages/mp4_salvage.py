@@ -26,10 +26,26 @@ from core.errors import SourceError
 CONTAINER_BOXES = {b"ftyp", b"moov", b"mdat", b"free", b"skip", b"wide", b"uuid", b"pnot", b"meta", b"styp"}
 RAW_FORMATS = {"h264": "h264", "hevc": "hevc", "mpeg4": "m4v", "mjpeg": "mjpeg"}
 """Codec of the reference -> FFmpeg's raw elementary-stream demuxer for the salvaged frames."""
-COPY_BLOCK = 1 << 20
-UNSURE_TAIL_FRAMES = 3
-"""Frames at the end of a cut stream with B-frames that may stand in the wrong place (x264's
-default of 3 B-frames)."""
+
+
+@dataclass(frozen=True)
+class Mp4SalvageConstants:
+    """The salvage's fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    copy_block: int = 1 << 20
+    """Bytes copied at a time (1 MiB): few reads, little memory."""
+    unsure_tail_frames: int = 3
+    """Frames at the end of a cut stream with B-frames that may stand in the wrong place (x264's
+    default of 3 B-frames)."""
+    max_nal_bytes: int = 1 << 24
+    """A length prefix claiming more than this (16 MiB, beyond any camera's key frame) is damage,
+    not a NAL unit."""
+    max_resync_bytes: int = 1 << 23
+    """How far past a damaged or foreign stretch (audio interleaved with the video) to look for
+    the next NAL unit (8 MiB) before giving up on the rest."""
+
+
+CONSTANTS = Mp4SalvageConstants()
 
 
 @dataclass
@@ -127,7 +143,7 @@ def salvage_to_raw(cut: Path, reference: Reference, out) -> str:
 
 def _copy(stream, count: int, out) -> None:
     while count > 0:
-        block = stream.read(min(COPY_BLOCK, count))
+        block = stream.read(min(CONSTANTS.copy_block, count))
         if not block:
             return
         out.write(block)
@@ -135,10 +151,6 @@ def _copy(stream, count: int, out) -> None:
 
 
 START_CODE = b"\x00\x00\x00\x01"
-MAX_NAL_BYTES = 1 << 24
-MAX_RESYNC_BYTES = 1 << 23
-"""How far past a damaged or foreign stretch (audio interleaved with the video) to look for
-the next NAL unit."""
 
 
 def _length_prefixed_to_annex_b(data, start: int, end: int, reference: Reference, out) -> str:
@@ -154,7 +166,8 @@ def _length_prefixed_to_annex_b(data, start: int, end: int, reference: Reference
     frame_start = out.tell()  # where the access unit (frame) being written began
     while position + length_size < end:
         if not _nal_at(data, position, end, length_size, reference.codec, depth=2):
-            found = next((candidate for candidate in range(position + 1, min(end, position + MAX_RESYNC_BYTES))
+            reach = min(end, position + CONSTANTS.max_resync_bytes)
+            found = next((candidate for candidate in range(position + 1, reach)
                           if _nal_at(data, candidate, end, length_size, reference.codec, depth=2)), None)
             if found is None:
                 break
@@ -192,7 +205,7 @@ def _nal_at(data, position: int, end: int, length_size: int, codec: str, depth: 
     if position + length_size + 2 > end:
         return False
     length = int.from_bytes(data[position:position + length_size], "big")
-    if not 2 <= length <= MAX_NAL_BYTES or position + length_size + length > end:
+    if not 2 <= length <= CONSTANTS.max_nal_bytes or position + length_size + length > end:
         return False
     header = data[position + length_size]
     if header & 0x80:  # forbidden_zero_bit
@@ -250,7 +263,7 @@ def open_salvaged(path: Path, config: CaptureConfig):
         raw.name, format=RAW_FORMATS[reference.codec], options=options))
     source.description = f"{path} (salvaged)"
     if reference.reorders and stopped:
-        source.unsure_tail = UNSURE_TAIL_FRAMES
+        source.unsure_tail = CONSTANTS.unsure_tail_frames
     source.stats.expected = None  # a raw stream has no frame count; a guess from its size would mislead
     source.stats.notes.append(f"salvaged from an MP4 without index with the codec settings of "
                               f"{config.reference}" + (f"; {stopped}" if stopped else ""))

@@ -35,40 +35,55 @@ The stage is this module (the per-frame flow and its state); the background mode
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from core.config import GroundConfig, ObjectsConfig
-from core.packets import Detection, FramePacket
+from core.packets import NETWORK, Detection, FramePacket, Measurement
 from stages.association import Region, points_in_regions
 from stages.background_model import FOREGROUND_VALUE, drop_small_pieces, make_background_subtractor
 from stages.blob_splitting import split_by_foreground, split_by_heads, split_by_height_peaks
 from stages.object_measurements import (coarse_class, fit_box_to_ends, foot_above_ground, foreground_ends,
                                         moving_beyond_ends, robust_top, seen_outline)
 
-# A part split off by height peaks needs this share of the blob's foreground test: half, as a
-# walker's plain coat is half missed by the background model (Oxford: 0.34-0.38 foreground).
-PART_FOREGROUND_FACTOR = 0.5
-# Exposure compensation: log-ratio histogram (bins of 0.02 over a factor of e each way) and the
-# gain change below which a frame is left alone (10 %: smaller steps are left to the model).
-EXPOSURE_BINS = 100
-EXPOSURE_RANGE = (-1.0, 1.0)
-EXPOSURE_TOLERANCE = 0.1
-REFERENCE_RATE = 0.05  # running mean of the scene that the gain is measured against
-# The foreground is grown by this many work pixels before it is cut to the height map.
-GROW_RADIUS = 3
-# Frames this noisy (grey levels, see ``ObjectExtractor._noisy``) are median-filtered before background
-# subtraction. trk_val20 (cached model heights): 4 of 20 sequences (night and dusk; trk_test40: 4 of 40),
-# HOTA 0.368 -> 0.370, at night 0.164 -> 0.180 (true height maps: 0.475 -> 0.488, false positives
-# 1253 -> 888); trk_dev20 1 of 20, 0.356 -> 0.357; heights unchanged. At 2.5 people's heights got
-# worse on trk_dev20 (10 of 55 objects). Oxford, traffic_bridge and the sample: 0-1.5.
-DENOISE_MIN_SIGMA = 4.5
-# Times the median background is fed to a fresh subtractor: enough to fill KNN's sample sets.
-PRIME_REPEATS = 50
-# Matched points an object needs for a height-consistency residual.
-MIN_CONSISTENCY_POINTS = 3
+
+@dataclass(frozen=True)
+class ObjectExtractionConstants:
+    """Object extraction's fixed numbers: properties of the method, not of a camera or a
+    scene (those are in ``[objects]``; the rule is in docs/design.md, Configuration)."""
+
+    # A part split off by height peaks needs this share of the blob's foreground test: half, as a
+    # walker's plain coat is half missed by the background model (Oxford: 0.34-0.38 foreground).
+    part_foreground_factor: float = 0.5
+    # Exposure compensation: log-ratio histogram (bins of 0.02 over a factor of e each way) and the
+    # gain change below which a frame is left alone (10 %: smaller steps are left to the model).
+    exposure_bins: int = 100
+    exposure_range: tuple[float, float] = (-1.0, 1.0)
+    exposure_tolerance: float = 0.1
+    # Rate of the running mean of the scene that the gain is measured against: about 20 frames, so
+    # an object passing through does not become the reference while the light drifts in.
+    reference_rate: float = 0.05
+    # The foreground is grown by this many work pixels before it is cut to the height map: flat-
+    # coloured parts of an object (a car roof, a plain coat) drop out of the background model and
+    # the height map fills them back in; the crown and soles come from the ungrown masks.
+    grow_radius: int = 3
+    # Frames this noisy (grey levels, see ``ObjectExtractor._noisy``) are median-filtered before
+    # background subtraction. trk_val20 (cached model heights): 4 of 20 sequences (night and dusk;
+    # trk_test40: 4 of 40), HOTA 0.368 -> 0.370, at night 0.164 -> 0.180 (true height maps: 0.475 ->
+    # 0.488, false positives 1253 -> 888); trk_dev20 1 of 20, 0.356 -> 0.357; heights unchanged. At
+    # 2.5 people's heights got worse on trk_dev20 (10 of 55 objects). Oxford, traffic_bridge and the
+    # sample: 0-1.5.
+    denoise_min_sigma: float = 4.5
+    # Times the median background is fed to a fresh subtractor: enough to fill KNN's sample sets.
+    prime_repeats: int = 50
+    # Matched points an object needs for a height-consistency residual: a median of fewer is one
+    # point's word.
+    min_consistency_points: int = 3
+
+
+CONSTANTS = ObjectExtractionConstants()
 
 
 @dataclass
@@ -80,7 +95,7 @@ class ForegroundMasks:
     changed: np.ndarray
     """Moving, or darker like a shadow (dark hair, shoes)."""
     grown: np.ndarray
-    """``moving`` dilated by ``GROW_RADIUS``: what the height map may fill in."""
+    """``moving`` dilated by ``CONSTANTS.grow_radius``: what the height map may fill in."""
     ends_changed: np.ndarray
     ends_moving: np.ndarray
     """The masks the crown and soles are read from: ``changed`` and ``moving``, or those of the
@@ -108,7 +123,7 @@ class ObjectExtractor:
         # walker's legs (1-2 work pixels wide); speckle is left to min_area_px. Generator dev set,
         # oracle heights: HOTA 0.525 -> 0.569, false positives 172 -> 115 without it.
         self.kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
-        self.grow_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * GROW_RADIUS + 1,) * 2)
+        self.grow_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * CONSTANTS.grow_radius + 1,) * 2)
         self._prev_height_map: np.ndarray | None = None
         self._denoise: bool | None = None
         self._ends_subtractor = None
@@ -192,11 +207,11 @@ class ObjectExtractor:
         background = np.median(np.stack(small), axis=0).astype(np.uint8)
         self._set_denoise(self._noisy(small))
         if self._ends_subtractor is not None:
-            for _ in range(PRIME_REPEATS):
+            for _ in range(CONSTANTS.prime_repeats):
                 self._ends_subtractor.apply(background)
         if self._denoise:
             background = cv2.medianBlur(background, 3)
-        for _ in range(PRIME_REPEATS):
+        for _ in range(CONSTANTS.prime_repeats):
             self.subtractor.apply(background)
         self._reference = background.astype(np.float32).mean(axis=2) + 4.0
 
@@ -216,11 +231,11 @@ class ObjectExtractor:
         foreground; grown, the specks join every walker to its neighbours and to the scenery.
         A 3x3 median filter removes them but also thins a small walker's legs, so it is used only
         on noisy cameras: the robust std of a frame minus its median-filtered self (the median
-        over the frames given) at least ``DENOISE_MIN_SIGMA``. Decided once per run.
+        over the frames given) at least ``CONSTANTS.denoise_min_sigma``. Decided once per run.
         """
         sigmas = [1.4826 * np.median(np.abs(image.astype(np.int16) - cv2.medianBlur(image, 3).astype(np.int16)))
                   for image in images]
-        return float(np.median(sigmas)) >= DENOISE_MIN_SIGMA
+        return float(np.median(sigmas)) >= CONSTANTS.denoise_min_sigma
 
     def _compensate_exposure(self, small: np.ndarray) -> np.ndarray:
         """Undo a global brightness change (auto exposure, a cloud) before background subtraction.
@@ -229,21 +244,21 @@ class ObjectExtractor:
         background model flags every pixel. Unchanged pixels all differ from the background by
         one gain, so the gain is the peak of the log-ratio histogram against a slow running mean
         of the (compensated) frames; the moving object's pixels spread over many bins. The frame
-        is divided by the gain when it is more than ``EXPOSURE_TOLERANCE`` off. (OpenCV's own
+        is divided by the gain when it is more than ``CONSTANTS.exposure_tolerance`` off. (OpenCV's own
         background image is not used: reading it from the KNN model changes its later output.)
         """
         grey = small.astype(np.float32).mean(axis=2) + 4.0
         if self._reference is None:
             self._reference = grey
             return small
-        counts, edges = np.histogram(np.log(grey / self._reference), bins=EXPOSURE_BINS,
-                                     range=EXPOSURE_RANGE)
+        counts, edges = np.histogram(np.log(grey / self._reference), bins=CONSTANTS.exposure_bins,
+                                     range=CONSTANTS.exposure_range)
         peak = int(np.argmax(counts))
         gain = float(np.exp((edges[peak] + edges[peak + 1]) / 2.0))
-        if abs(gain - 1.0) > EXPOSURE_TOLERANCE:
+        if abs(gain - 1.0) > CONSTANTS.exposure_tolerance:
             small = np.clip(small.astype(np.float32) / gain, 0, 255).astype(np.uint8)
             grey = (grey - 4.0) / gain + 4.0
-        self._reference += REFERENCE_RATE * (grey - self._reference)
+        self._reference += CONSTANTS.reference_rate * (grey - self._reference)
         return small
 
     def _image_edge(self, image_valid: np.ndarray | None, size: tuple[int, int], scale: float,
@@ -314,13 +329,14 @@ class ObjectExtractor:
                 for part in parts:
                     # A part cut off by height (a facade beside a walker) must be moving itself.
                     if (fg is not None and len(parts) > 1
-                            and fg[part].mean() < PART_FOREGROUND_FACTOR * self.config.min_foreground_share):
+                            and fg[part].mean() < CONSTANTS.part_foreground_factor * self.config.min_foreground_share):
                         continue
                     if masks is None:
                         beyond, ends, outline = (False, False), None, None
                     else:
                         beyond = moving_beyond_ends(part, (x, y), masks.grown, work_edge)
-                        ends = foreground_ends(part, (x, y), masks.ends_changed, masks.ends_moving, GROW_RADIUS)
+                        ends = foreground_ends(part, (x, y), masks.ends_changed, masks.ends_moving,
+                                               CONSTANTS.grow_radius)
                         outline = seen_outline(part, (x, y), masks.changed)
                     detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond, ends,
                                                          outline)
@@ -381,10 +397,12 @@ class ObjectExtractor:
         for column, detection in enumerate(detections):
             residuals = change[inside[:, column]]
             residuals = residuals[np.isfinite(residuals)]
-            if residuals.size >= MIN_CONSISTENCY_POINTS and np.isfinite(detection.height_noise_m):
+            network = detection.heights.get(NETWORK)
+            if (residuals.size >= CONSTANTS.min_consistency_points and network is not None
+                    and np.isfinite(network.noise_m)):
                 residual = float(np.median(residuals))
-                detection.height_noise_m = float(np.hypot(detection.height_noise_m,
-                                                          self.config.consistency_gain * residual))
+                noise = float(np.hypot(network.noise_m, self.config.consistency_gain * residual))
+                detection.add_height(NETWORK, replace(network, noise_m=noise))
 
     def _measure(self, mask: np.ndarray, height_map: np.ndarray | None, corners: tuple[int, int, int, int],
                  at_edge: np.ndarray, scale: float, beyond: tuple[bool, bool]) -> Detection | None:
@@ -396,7 +414,7 @@ class ObjectExtractor:
         top_cut = bool(rows.size and at_edge[rows[0]:rows[0] + band].any()) or beyond[0]
         foot_cut = bool(rows.size and at_edge[max(rows[-1] + 1 - band, 0):rows[-1] + 1].any()) or beyond[1]
         touches_border = bool(at_edge.any())
-        height_m, noise_m = float("nan"), float("inf")
+        height_m, measured = float("nan"), {}
         if height_map is not None:
             heights = height_map[y0:y1, x0:x1]
             height_m = robust_top(heights, mask, self.config.height_percentile)
@@ -406,13 +424,14 @@ class ObjectExtractor:
             foot_cut = foot_cut or foot_above_ground(heights, mask, rows, height_m)
             if top_cut:
                 noise_m = float("inf")    # top cut off by the frame: a lower bound, not a height
+            measured[NETWORK] = Measurement(height_m, noise_m, source="objects")
         return Detection(
             box=(float(x0), float(y0), box_w, box_h),
-            height_m=height_m,
+            heights=measured,
             cls=coarse_class(height_m, box_w, box_h),
+            cls_source="objects",
             foot_xy=((x0 + x1) / 2.0, float(y1)),
             top_xy=((x0 + x1) / 2.0, float(y0)),
-            height_noise_m=noise_m,
             touches_border=touches_border,
             foot_cut=foot_cut,
             top_cut=top_cut,

@@ -6,13 +6,23 @@ becomes.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from core.packets import Detection
 
-# A blob whose bottom tenth stands higher than this share of its top has no visible foot
-# (Oxford, step-4,400 model: whole people 0.16-0.28, blobs missing their legs 0.22-0.49).
-FOOT_MAX_SHARE = 0.4
+
+@dataclass(frozen=True)
+class ObjectMeasurementConstants:
+    """Fixed numbers of measuring one object (the rule is in docs/design.md, Configuration)."""
+
+    # A blob whose bottom tenth stands higher than this share of its top has no visible foot
+    # (Oxford, step-4,400 model: whole people 0.16-0.28, blobs missing their legs 0.22-0.49).
+    foot_max_share: float = 0.4
+
+
+CONSTANTS = ObjectMeasurementConstants()
 
 
 def coarse_class(height_m: float, box_w_px: float, box_h_px: float) -> str:
@@ -153,7 +163,7 @@ def foot_above_ground(heights: np.ndarray, mask: np.ndarray, rows: np.ndarray, t
     A blob of only a head and shoulders (a dark coat the background model missed, a person
     behind a bench) ends where the object does not touch the ground; its lowest point is no
     foot for the geometry. Checked on the height map: the bottom tenth of the blob must be
-    lower than ``FOOT_MAX_SHARE`` of the object's top.
+    lower than ``CONSTANTS.foot_max_share`` of the object's top.
     """
     if rows.size == 0 or not np.isfinite(top_m) or top_m <= 0:
         return False
@@ -161,7 +171,7 @@ def foot_above_ground(heights: np.ndarray, mask: np.ndarray, rows: np.ndarray, t
     band[:max(rows[-1] + 1 - max(1, int(0.1 * (rows[-1] - rows[0] + 1))), 0)] = False
     values = heights[band]
     values = values[np.isfinite(values)]
-    return bool(values.size and np.median(values) > FOOT_MAX_SHARE * top_m)
+    return bool(values.size and np.median(values) > CONSTANTS.foot_max_share * top_m)
 
 
 def robust_top(heights: np.ndarray, mask: np.ndarray, percentile: float) -> float:

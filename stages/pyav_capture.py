@@ -34,9 +34,18 @@ from core.errors import SourceError
 from core.packets import Frame
 from stages.capture import FrameSource, background_indices
 
-MAX_GAP_S = 10.0
-"""A time stamp further than this past the previous frame is taken as damaged, not as a gap
-of lost frames (no camera drops ten seconds and then carries on in the same file)."""
+
+
+@dataclass(frozen=True)
+class PyAVCaptureConstants:
+    """PyAV capture's fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    max_gap_s: float = 10.0
+    """A time stamp further than this past the previous frame is taken as damaged, not as a gap
+    of lost frames (no camera drops ten seconds and then carries on in the same file)."""
+
+
+CONSTANTS = PyAVCaptureConstants()
 
 
 def _av():
@@ -306,7 +315,7 @@ class DamageTracker:
             return 0, 0.0, ""
         time_s = stamp - self.origin_s
         gap = time_s - self.time_s
-        if gap <= 0 or gap > MAX_GAP_S:
+        if gap <= 0 or gap > CONSTANTS.max_gap_s:
             self.index += 1
             self.time_s += step
             return 0, self.time_s, f"time stamp {'goes back' if gap <= 0 else 'jumps ahead'} ({gap:+.3f} s)"

@@ -27,6 +27,7 @@ import os
 import sys
 import urllib.parse
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,18 +42,30 @@ from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_T
                                 confirmed, damage_text, height_text, quality_rgb, track_label)
 
 APPLICATION_ID = "heightpipe"
-VIEWER_MEMORY_LIMIT = "2GB"
-"""Spawned viewer's limit: it drops the oldest data beyond this (its default is 75% of RAM)."""
 RERUN_MODES = ("save", "spawn", "web", "serve")
 WEB_VIEWER_PORT = 9090
 """rerun's default web viewer port (serve mode)."""
-FLUSH_TIMEOUT_S = 30.0
-"""close() waits at most this long for a viewer to take the last data."""
-EVENT_MARKER_S = 3.0
-"""An event's marker stays on the frame this long (source time)."""
 EVENT_RGB = (255, 40, 200)
-EVENT_MARKER_PAD_PX = 6.0
-"""The marker is a thick magenta frame this far around the object's box."""
+
+
+@dataclass(frozen=True)
+class RerunSinkConstants:
+    """The rerun sink's fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    viewer_memory_limit: str = "2GB"
+    """Spawned viewer's limit: it drops the oldest data beyond this (its default, 75 % of RAM,
+    would compete with the run for memory)."""
+    flush_timeout_s: float = 30.0
+    """close() waits at most this long for a viewer to take the last data: long enough for a
+    viewer that is busy, short enough that a vanished one does not hang the run's end."""
+    event_marker_s: float = 3.0
+    """An event's marker stays on the frame this long (source time): long enough to catch the eye."""
+    event_marker_pad_px: float = 6.0
+    """The marker is a thick magenta frame this far around the object's box, clear of its own
+    quality-coloured box."""
+
+
+CONSTANTS = RerunSinkConstants()
 
 
 def has_display() -> bool:
@@ -208,14 +221,14 @@ class RerunFrameLogger:
             text = (f"{event['rule']}: #{event['track_id']} {event['class']} "
                     f"{height_text(event['height_m'], event['height_std_m'])} ({event['height_source']})")
             self.rec.log("/events", rr.TextLog(text, level=rr.TextLogLevel.WARN))
-        pad = EVENT_MARKER_PAD_PX
+        pad = CONSTANTS.event_marker_pad_px
         frames = [(e["box"][0] - pad, e["box"][1] - pad, e["box"][2] + 2 * pad, e["box"][3] + 2 * pad)
                   for e in events]
         self.rec.log("/camera/events", rr.Boxes2D(
             array=np.array(frames, dtype=np.float32), array_format=rr.Box2DFormat.XYWH,
             colors=[EVENT_RGB] * len(events), radii=2.0, labels=[e["rule"] for e in events],
             show_labels=True))
-        self._marker_until_s = self._time_s + EVENT_MARKER_S
+        self._marker_until_s = self._time_s + CONSTANTS.event_marker_s
 
 
 def open_recording(recording_name: str) -> rr.RecordingStream:
@@ -227,7 +240,7 @@ def open_recording(recording_name: str) -> rr.RecordingStream:
 def close_recording(rec: rr.RecordingStream) -> None:
     """Flushes every sink and finishes files (footer); a gone viewer only warns."""
     try:
-        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        rec.flush(timeout_sec=CONSTANTS.flush_timeout_s)
     except RuntimeError as exc:  # e.g. the viewer window was closed: the file sink is still fine
         print(f"heightpipe: warning: rerun: {exc}", file=sys.stderr)
     rec.disconnect()
@@ -256,7 +269,7 @@ class RerunSink:
             if mode == "save":
                 self.rec.save(self.path, default_blueprint=blueprint)
             elif mode == "spawn":
-                self.rec.spawn(connect=False, memory_limit=VIEWER_MEMORY_LIMIT)
+                self.rec.spawn(connect=False, memory_limit=CONSTANTS.viewer_memory_limit)
                 self.rec.set_sinks(rr.GrpcSink(), rr.FileSink(self.path), default_blueprint=blueprint)
             elif mode == "web":
                 if web_url is None:
@@ -313,7 +326,7 @@ class RerunSink:
             self._last_flush_s = time_s
         elif time_s - self._last_flush_s >= self.flush_interval_s:
             try:
-                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+                self.rec.flush(timeout_sec=CONSTANTS.flush_timeout_s)
             except RuntimeError:  # a viewer gone or slow: the file sink has what it needs; close() reports
                 pass
             self._last_flush_s = time_s

@@ -6,6 +6,8 @@ is JPEG-encoded (and its height map downscaled) once, not once per sink.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -105,12 +107,22 @@ def confirmed(tracks: list[Track]) -> list[Track]:
     return [track for track in tracks if track.confirmed]
 
 
-SETTLED_STD_M = 0.10
-"""A track whose height std is at most this is 'settled' (drawn green); above it 'settling'."""
+@dataclass(frozen=True)
+class SinkConstants:
+    """The views' fixed numbers (the rule is in docs/design.md, Configuration)."""
+
+    settled_std_m: float = 0.10
+    """A track whose height std is at most this is 'settled' (drawn green); above it 'settling':
+    a decimetre is what a calibrated camera reaches on people."""
+    label_room_px: tuple[int, int] = (40, 48)
+    """A box at least this wide and tall (pixels) has room for the label's second line (id,
+    class, source) without hiding the object."""
+
+
+CONSTANTS = SinkConstants()
+
 QUALITY_RGB = {"settled": (60, 220, 90), "settling": (255, 190, 40), "no height": (170, 170, 170)}
 """Box colour by measurement quality, the same in rerun and Foxglove."""
-LABEL_ROOM_PX = (40, 48)
-"""A box at least this wide and tall (pixels) has room for the label's second line."""
 CAMERA_STATES = {
     "calibration": "calibrated (full pose: a calibration file, or camera height and pitch)",
     "camera-height": "camera height given, no full calibration",
@@ -158,7 +170,7 @@ def height_quality(track: Track) -> str:
     """'settled', 'settling' or 'no height' (its top never inside the frame)."""
     if not np.isfinite(track.height_m):
         return "no height"
-    return "settled" if track.height_std_m <= SETTLED_STD_M else "settling"
+    return "settled" if track.height_std_m <= CONSTANTS.settled_std_m else "settling"
 
 
 def height_text(height_m: float, std_m: float) -> str:
@@ -175,7 +187,7 @@ def track_label(track: Track) -> str:
     """'1.72 m ±4 cm', with '#12 person, geometry' on a second line when the box has room."""
     text = height_text(track.height_m, track.height_std_m)
     _x, _y, width, height = track.box
-    if width >= LABEL_ROOM_PX[0] and height >= LABEL_ROOM_PX[1]:
+    if width >= CONSTANTS.label_room_px[0] and height >= CONSTANTS.label_room_px[1]:
         text += f"\n#{track.track_id} {track.cls}, {track.height_source}"
     return text
 

@@ -17,7 +17,7 @@ import pytest
 from core.config import CameraConfig
 from core.errors import ConfigError
 from core.packets import CameraInfo
-from stages.calibration import (ASSUMED_CAMERA_HEIGHT_M, angles_from_rotation, camera_centre, camera_for_run,
+from stages.calibration import (CONSTANTS, angles_from_rotation, camera_centre, camera_for_run,
                                 camera_from_pose, heights_from_foot_top, horizon_line, intrinsics_from_fov,
                                 is_calibrated, load_calibration, pixel_to_ground, project_points,
                                 rotation_from_angles, undistort_pixels, vertical_vanishing_point)
@@ -326,7 +326,8 @@ def test_translation_mistaken_for_the_camera_centre_is_caught(tmp_path):
 
 def test_camera_for_run_sources():
     nothing = camera_for_run(CameraConfig(), 640, 360)
-    assert nothing.source == "none" and nothing.height_m == ASSUMED_CAMERA_HEIGHT_M and not is_calibrated(nothing)
+    assert nothing.source == "none" and not is_calibrated(nothing)
+    assert nothing.height_m == CONSTANTS.assumed_camera_height_m
     assert nothing.K[0, 0] == pytest.approx(320 / math.tan(math.radians(30)))
     height_only = camera_for_run(CameraConfig(height_m=7.84), 640, 360)
     assert height_only.source == "camera-height" and height_only.height_m == 7.84 and not is_calibrated(height_only)

@@ -12,10 +12,10 @@ import pytest
 
 from core.config import CameraConfig
 from core.errors import SourceError
-from core.packets import CameraInfo, Detection, Frame, FramePacket
+from core.packets import GEOMETRY, NETWORK, CameraInfo, Detection, Frame, FramePacket, Measurement
 from stages.calibration import (camera_for_run, camera_from_pose, heights_from_foot_top, intrinsics_from_fov,
                                 load_calibration, project_points, undistort_pixels)
-from stages.geometry import NETWORK_PRIOR_SCALE_NOISE, SCALE_MIN_SAMPLES, GeometryMeasurer
+from stages.geometry import CONSTANTS, GeometryMeasurer
 from stages.undistortion import Undistorter
 
 SHARED_REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real"
@@ -31,7 +31,8 @@ def packet_with(camera: CameraInfo, detections: list[Detection], image: np.ndarr
 
 
 def detection(foot, top, cls="person") -> Detection:
-    return Detection(box=(min(foot[0], top[0]) - 5, top[1], 10, foot[1] - top[1]), height_m=1.0, cls=cls,
+    return Detection(box=(min(foot[0], top[0]) - 5, top[1], 10, foot[1] - top[1]),
+                     heights={NETWORK: Measurement(1.0, 0.15, "test")}, cls=cls,
                      foot_xy=(float(foot[0]), float(foot[1])), top_xy=(float(top[0]), float(top[1])))
 
 
@@ -52,16 +53,16 @@ def test_oxford_annotations_give_the_annotated_heights_and_ground_points():
     camera = load_calibration(OXFORD_CALIBRATION)           # raw frames: points undistorted in the stage
     detections, rows = oxford_detections()
     GeometryMeasurer(CameraConfig()).process(packet_with(camera, detections))
-    measured = [(d, r) for d, r in zip(detections, rows) if d.geometry_height_m is not None]
+    measured = [(d, r) for d, r in zip(detections, rows) if GEOMETRY in d.heights]
     # Rows whose foot is cut by the frame's edge have no measurement.
     assert all(r["foot_inside_image"] == "1" for _, r in measured)
     assert len(measured) >= 0.95 * sum(r["foot_inside_image"] == "1" for r in rows)
-    errors = np.array([d.geometry_height_m - float(r["height_headtop_m"]) for d, r in measured])
+    errors = np.array([d.heights[GEOMETRY].value_m - float(r["height_headtop_m"]) for d, r in measured])
     assert np.abs(errors).max() < 1e-3
     ground = np.array([d.ground_xy_m for d, _ in measured])
     expected = np.array([[float(r["ground_x_m"]), float(r["ground_y_m"])] for _, r in measured])
     assert np.abs(ground - expected).max() < 1e-3
-    noise = np.array([d.geometry_noise_m for d, _ in measured])
+    noise = np.array([d.heights[GEOMETRY].noise_m for d, _ in measured])
     assert np.all((noise > 0.01) & (noise < 0.2))
 
 
@@ -81,8 +82,8 @@ def test_undistorted_frames_and_undistorted_points_agree():
     measurer = GeometryMeasurer(CameraConfig())
     measurer.process(packet_with(raw_camera, raw))
     measurer.process(packet_with(undistorter.camera, undistorted))
-    a = np.array([d.geometry_height_m or np.nan for d in raw])
-    b = np.array([d.geometry_height_m or np.nan for d in undistorted])
+    a = np.array([d.height(GEOMETRY) for d in raw])
+    b = np.array([d.height(GEOMETRY) for d in undistorted])
     # The border test is made on each frame's own pixels, so a foot on the bottom edge may differ.
     both = ~np.isnan(a) & ~np.isnan(b)
     assert both.sum() >= 0.9 * (~np.isnan(a)).sum() and np.abs(a[both] - b[both]).max() < 1e-6
@@ -125,7 +126,7 @@ def test_uncalibrated_camera_gets_no_geometry():
     for camera in (camera_for_run(CameraConfig(), 640, 480), camera_for_run(CameraConfig(height_m=5.0), 640, 480)):
         d = detection((320, 400), (320, 300))
         GeometryMeasurer(CameraConfig()).process(packet_with(camera, [d]))
-        assert d.geometry_height_m is None and d.geometry_noise_m is None and d.ground_xy_m is None
+        assert GEOMETRY not in d.heights and d.ground_xy_m is None
 
 
 def test_points_cut_by_the_border_are_not_measured():
@@ -134,9 +135,9 @@ def test_points_cut_by_the_border_are_not_measured():
     top_cut = dataclasses.replace(detection((320, 300), (320, 0.5)), top_cut=True)
     whole = detection((320, 300), (320, 200))
     GeometryMeasurer(CameraConfig()).process(packet_with(camera, [foot_cut, top_cut, whole]))
-    assert foot_cut.ground_xy_m is None and foot_cut.geometry_height_m is None
-    assert top_cut.ground_xy_m is not None and top_cut.geometry_height_m is None
-    assert whole.geometry_height_m is not None
+    assert foot_cut.ground_xy_m is None and GEOMETRY not in foot_cut.heights
+    assert top_cut.ground_xy_m is not None and GEOMETRY not in top_cut.heights
+    assert GEOMETRY in whole.heights
 
 
 def _person_at(camera, x, y, height_m):
@@ -156,10 +157,10 @@ def test_a_person_whose_feet_are_below_the_frame_gets_a_lower_bound():
         cut.foot_cut = True
         whole = _person_at(camera, x, y + 4.0, 1.80)
         GeometryMeasurer(CameraConfig()).process(packet_with(camera, [cut, whole]))
-        assert cut.geometry_height_m is None
-        assert 0.0 < cut.geometry_min_height_m < 1.80
-        assert whole.geometry_min_height_m is None and whole.geometry_height_m == pytest.approx(1.80, abs=0.01)
-        bounds.append(cut.geometry_min_height_m)
+        assert GEOMETRY not in cut.heights
+        assert 0.0 < cut.min_height_m < 1.80
+        assert whole.min_height_m is None and whole.heights[GEOMETRY].value_m == pytest.approx(1.80, abs=0.01)
+        bounds.append(cut.min_height_m)
     assert bounds == sorted(bounds) and bounds[-1] > 1.5     # the bound tightens as less is cut
 
 
@@ -177,8 +178,8 @@ def test_pixel_noise_is_propagated_honestly():
     assert stated == pytest.approx(np.std(samples, axis=0), rel=0.1)
     assert np.all(np.diff(stated) > 0)                        # farther people: fewer pixels, more noise
     measurer.process(packet_with(camera, people))
-    assert [d.geometry_height_m for d in people] == pytest.approx([1.75] * 4, abs=1e-9)
-    assert all(d.geometry_noise_m >= s for d, s in zip(people, stated))
+    assert [d.heights[GEOMETRY].value_m for d in people] == pytest.approx([1.75] * 4, abs=1e-9)
+    assert all(d.heights[GEOMETRY].noise_m >= s for d, s in zip(people, stated))
 
 
 def test_self_calibrated_camera_height_uncertainty_widens_the_noise():
@@ -188,11 +189,12 @@ def test_self_calibrated_camera_height_uncertainty_widens_the_noise():
     uncertain = dataclasses.replace(exact)
     GeometryMeasurer(config).process(packet_with(camera, [exact]))
     GeometryMeasurer(dataclasses.replace(config, height_std_m=0.6)).process(packet_with(camera, [uncertain]))
-    assert uncertain.geometry_height_m == exact.geometry_height_m
+    wide, narrow = uncertain.heights[GEOMETRY], exact.heights[GEOMETRY]
+    assert wide.value_m == narrow.value_m
     # 10 % of the camera height is 10 % of the object's height, added in quadrature.
-    assert uncertain.geometry_noise_m == pytest.approx(np.hypot(exact.geometry_noise_m, 0.175), rel=1e-6)
+    assert wide.noise_m == pytest.approx(np.hypot(narrow.noise_m, 0.175), rel=1e-6)
     # ... but it is no bias of this object: every object and the network's scale share it.
-    assert uncertain.geometry_bias_m == exact.geometry_bias_m <= exact.geometry_noise_m
+    assert wide.bias_m == narrow.bias_m <= narrow.noise_m
 
 
 def test_long_objects_get_more_noise_than_people():
@@ -201,10 +203,10 @@ def test_long_objects_get_more_noise_than_people():
     car = _widened(person, 200)                     # the same foot and top, 2.7 m wide there
     GeometryMeasurer(CameraConfig()).process(packet_with(camera, [person, car]))
     assert (person.cls, car.cls) == ("person", "vehicle")
-    assert car.geometry_height_m == person.geometry_height_m
-    assert car.geometry_noise_m > 3 * person.geometry_noise_m
+    assert car.heights[GEOMETRY].value_m == person.heights[GEOMETRY].value_m
+    assert car.heights[GEOMETRY].noise_m > 3 * person.heights[GEOMETRY].noise_m
     # The shape term follows the class (which flickers): only the pixels are a per-object bias.
-    assert car.geometry_bias_m == pytest.approx(person.geometry_bias_m)
+    assert car.heights[GEOMETRY].bias_m == pytest.approx(person.heights[GEOMETRY].bias_m)
 
 
 def _widened(d: Detection, width_px: float) -> Detection:
@@ -222,9 +224,10 @@ def test_objects_are_classed_by_their_height_and_width_in_metres():
                                       _person_at(camera, -4, 15, 0.6))
     bike, car = _widened(bike, 110), _widened(car, 180)        # ~1.5 m and ~2.4 m at 15 m
     for d in (walker, child, bin_):
-        d.cls = "vehicle"                                      # whatever the network's height said
+        d.classify("vehicle", "objects")                       # whatever the network's height said
     GeometryMeasurer(CameraConfig()).process(packet_with(camera, [walker, child, bike, car, bin_]))
     assert [d.cls for d in (walker, child, bike, car, bin_)] == ["person", "person", "cyclist", "vehicle", "other"]
+    assert {d.cls_source for d in (walker, child, bike, car, bin_)} == {"geometry"}   # who decided it
 
 
 # --------------------------------------------------------------------------- generator frames
@@ -265,7 +268,7 @@ def _mask_detections(sequence, index):
         if y0 <= 2 or y1 >= camera.height - 2 or x0 <= 2 or x1 >= camera.width - 2:
             continue
         cls = _coarse(truth.cls)
-        pairs.append((Detection(box=(x0, y0, x1 - x0, y1 - y0), height_m=float("nan"), cls=cls,
+        pairs.append((Detection(box=(x0, y0, x1 - x0, y1 - y0), cls=cls,
                                 foot_xy=((x0 + x1) / 2, float(y1)), top_xy=((x0 + x1) / 2, float(y0))), truth))
     return pairs
 
@@ -280,7 +283,7 @@ def test_generator_frames_heights_and_ground_positions(synth_sequence):
         pairs = _mask_detections(synth_sequence, index)
         measurer.process(packet_with(camera, [d for d, _ in pairs]))
         for d, truth in pairs:
-            assert d.geometry_height_m is not None
+            assert GEOMETRY in d.heights
             (people if truth.cls == "pedestrian" else others).append((d, truth))
     assert len(people) >= 10
     # The class in metres (geometry height, width at the foot): people are people, vehicles are
@@ -288,21 +291,21 @@ def test_generator_frames_heights_and_ground_positions(synth_sequence):
     assert np.mean([d.cls == "person" for d, _ in people]) > 0.9
     vehicles = [d for d, t in others if _coarse(t.cls) == "vehicle"]
     assert vehicles and all(d.cls == "vehicle" for d in vehicles)
-    errors = np.array([d.geometry_height_m - t.height_m for d, t in people])
-    noise = np.array([d.geometry_noise_m for d, _ in people])
+    errors = np.array([d.heights[GEOMETRY].value_m - t.height_m for d, t in people])
+    noise = np.array([d.heights[GEOMETRY].noise_m for d, _ in people])
     assert np.abs(errors).max() < 0.15 and abs(np.mean(errors)) < 0.06
     assert np.mean(np.abs(errors) < 2 * noise) > 0.9              # the stated noise covers the error
     # The box's bottom is the nearer foot, not the body's centre: decimetres at 640x480.
     ground = np.array([np.hypot(*np.subtract(d.ground_xy_m, t.ground_xy_m)) for d, t in people])
     assert np.median(ground) < 0.4 and ground.max() < 0.8
     for d, truth in others:                                       # vehicles: biased high, but within noise
-        assert abs(d.geometry_height_m - truth.height_m) < 3 * d.geometry_noise_m
+        assert abs(d.heights[GEOMETRY].value_m - truth.height_m) < 3 * d.heights[GEOMETRY].noise_m
 
 
 def _person_read_low(camera: CameraInfo, x_m: float, y_m: float, height_m: float, share: float) -> Detection:
     """A person with exact foot and top points whose network height reads ``share`` of the truth."""
     d = _person_at(camera, x_m, y_m, height_m)
-    d.height_m, d.height_noise_m = share * height_m, 0.15
+    d.add_height(NETWORK, Measurement(share * height_m, 0.15, "test"))
     return d
 
 
@@ -310,29 +313,30 @@ def test_network_heights_are_rescaled_by_their_ratio_to_geometry_on_people():
     camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 6.0, 25.0)
     measurer = GeometryMeasurer(CameraConfig())
     rng = np.random.default_rng(0)
-    for frame in range(SCALE_MIN_SAMPLES + 5):
+    for frame in range(CONSTANTS.scale_min_samples + 5):
         people = [_person_read_low(camera, rng.uniform(-3, 3), rng.uniform(10, 20), rng.uniform(1.6, 1.9), 0.7)]
         # A cut person: no geometry, only the network sees it; and a vehicle, which neither feeds
         # the scale nor gets it.
         cut = dataclasses.replace(_person_read_low(camera, 0.0, 15.0, 1.8, 0.7), foot_cut=True)
         car = _widened(_person_read_low(camera, 2.0, 12.0, 1.5, 0.3), 120)
         measurer.process(packet_with(camera, people + [cut, car]))
-        if frame < SCALE_MIN_SAMPLES - 1:
-            assert cut.height_m == pytest.approx(0.7 * 1.8)           # too few ratios yet: untouched
+        if frame < CONSTANTS.scale_min_samples - 1:
+            assert cut.height() == pytest.approx(0.7 * 1.8)           # too few ratios yet: untouched
             # ... but as unsure as an unknown scale makes it (half its height), not 0.15 m.
-            assert cut.height_noise_m == pytest.approx(np.hypot(0.15, NETWORK_PRIOR_SCALE_NOISE * 0.7 * 1.8))
+            prior = CONSTANTS.network_prior_scale_noise * 0.7 * 1.8
+            assert cut.heights[NETWORK].noise_m == pytest.approx(np.hypot(0.15, prior))
     assert measurer.network_scale.scale == pytest.approx(1 / 0.7, rel=0.02)
-    assert cut.geometry_height_m is None and cut.height_m == pytest.approx(1.8, rel=0.02)
+    assert GEOMETRY not in cut.heights and cut.height() == pytest.approx(1.8, rel=0.02)
     # A scale learnt on thin people is not a vehicle's: its network height is left as it is.
-    assert car.cls == "vehicle" and car.height_m == pytest.approx(0.3 * 1.5)
+    assert car.cls == "vehicle" and car.height() == pytest.approx(0.3 * 1.5)
     # The scale is known now (every person read 0.7x): back to the base noise, rescaled.
-    assert cut.height_noise_m == pytest.approx(0.15 / 0.7, rel=0.02)
+    assert cut.heights[NETWORK].noise_m == pytest.approx(0.15 / 0.7, rel=0.02)
 
 
 def test_network_rescaling_can_be_switched_off():
     camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 6.0, 25.0)
     measurer = GeometryMeasurer(CameraConfig(rescale_network=False))
-    for _ in range(SCALE_MIN_SAMPLES + 5):
+    for _ in range(CONSTANTS.scale_min_samples + 5):
         person = _person_read_low(camera, 0.0, 15.0, 1.8, 0.7)
         measurer.process(packet_with(camera, [person]))
-    assert person.height_m == pytest.approx(0.7 * 1.8) and measurer.network_scale is None
+    assert person.height() == pytest.approx(0.7 * 1.8) and measurer.network_scale is None

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from core.config import TrackingConfig
-from stages.kalman import (CHI2_95_4DOF, FilterFactory, HeightFilter, MotionFilter, StatureWindow, box_to_z,
+from stages.kalman import (FilterFactory, HeightFilter, MotionFilter, StatureWindow, box_to_z,
                            z_to_box)
 
 
@@ -59,7 +59,7 @@ def test_gating_distance_is_relative_to_the_box_size(scale):
     # process noise (1/20)^2 from one predict, + measurement noise (1/20)^2. Offset w/10.
     variance = (2 / 20) ** 2 + (10 / 160) ** 2 + 2 * (1 / 20) ** 2
     assert shifted == pytest.approx((1 / 10) ** 2 / variance)   # the same number at both scales
-    assert far > CHI2_95_4DOF
+    assert far > TrackingConfig().motion_gate_chi2           # outside the tracker's gate
     assert motion.mahalanobis_sq([]).shape == (0,)
 
 

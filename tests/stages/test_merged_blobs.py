@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.config import TrackingConfig
-from core.packets import Detection
+from core.packets import NETWORK, Detection, Measurement
 from stages.association import iou_matrix
 from stages.merged_blobs import split_by_predictions
 from stages.tracking import ObjectTracker
@@ -20,8 +20,8 @@ def _merged(boxes: list[tuple[int, int, int, int]], height_m: float = 1.9) -> De
     mask = np.zeros((y1 - y0, x1 - x0), dtype=bool)
     for x, y, w, h in boxes:
         mask[y - y0:y - y0 + h, x - x0:x - x0 + w] = True
-    return Detection(box=(float(x0), float(y0), float(x1 - x0), float(y1 - y0)), height_m=height_m,
-                     cls="vehicle", height_noise_m=0.15, mask=mask)
+    return Detection(box=(float(x0), float(y0), float(x1 - x0), float(y1 - y0)),
+                     heights={NETWORK: Measurement(height_m, 0.15, "test")}, cls="vehicle", mask=mask)
 
 
 def test_a_blob_holding_two_predictions_is_cut_into_one_piece_each():
@@ -32,8 +32,8 @@ def test_a_blob_holding_two_predictions_is_cut_into_one_piece_each():
     iou = iou_matrix([p.box for p in pieces], [left, right])
     assert iou[0, 0] > 0.6 and iou[1, 1] > 0.6
     # The blob's top may be the other person's: a piece carries no height of its own.
-    assert all(np.isnan(p.height_m) and p.geometry_height_m is None for p in pieces)
-    assert [p.cls for p in pieces] == ["person", "person"]
+    assert all(p.heights == {} and p.min_height_m is None for p in pieces)
+    assert [(p.cls, p.cls_source) for p in pieces] == [("person", "tracking")] * 2
     assert all(p.mask.shape == (int(p.box[3]), int(p.box[2])) and p.mask.any() for p in pieces)
 
 
@@ -69,8 +69,9 @@ def test_walkers_who_pass_close_keep_their_own_boxes_ids_and_heights():
         if overlapping:
             detections = [_merged([a, b], height_m=1.90)]
         else:
-            detections = [Detection(box=tuple(map(float, box)), height_m=heights[name], cls="person",
-                                    height_noise_m=0.1) for name, box in (("a", a), ("b", b))]
+            detections = [Detection(box=tuple(map(float, box)), cls="person",
+                                    heights={NETWORK: Measurement(heights[name], 0.1, "test")})
+                          for name, box in (("a", a), ("b", b))]
         tracks = [t for t in tracker.update(detections) if t.confirmed]
         if frame < 5:
             continue
@@ -90,8 +91,8 @@ def test_two_vehicle_tracks_in_one_blob_are_one_vehicle_not_cut():
     tracker = ObjectTracker(TrackingConfig())
     front, back = (100, 50, 40, 40), (138, 46, 40, 44)          # a van's cab and box, seen apart
     for frame in range(6):
-        tracker.update([Detection(box=tuple(map(float, b)), height_m=2.6, cls="vehicle", height_noise_m=0.1)
-                        for b in (front, back)])
+        tracker.update([Detection(box=tuple(map(float, b)), heights={NETWORK: Measurement(2.6, 0.1, "test")},
+                                  cls="vehicle") for b in (front, back)])
     whole = _merged([front, back], height_m=2.6)
     tracks = [t for t in tracker.update([whole]) if t.updated]
     assert len(tracks) == 1 and iou_matrix([tracks[0].box], [whole.box])[0, 0] > 0.8

@@ -9,7 +9,7 @@ import pytest
 
 from core.config import GroundConfig, ObjectsConfig
 from core.errors import ConfigError
-from core.packets import CameraInfo, Detection, Frame, FramePacket
+from core.packets import NETWORK, CameraInfo, Detection, Frame, FramePacket
 from stages.object_extraction import ObjectExtractor
 from stages.object_measurements import coarse_class, fit_box_to_ends, foreground_ends, moving_beyond_ends, seen_outline
 
@@ -67,15 +67,15 @@ def test_moving_person_becomes_one_detection_with_its_height():
     detection = packet.detections[0]
     x, y, w, h = detection.box
     assert (x, y, w, h) == pytest.approx((100 + 6 * 14, 150, 40, 120), abs=4)
-    assert detection.height_m == pytest.approx(1.75, abs=0.06)
-    assert detection.cls == "person"
+    assert detection.height() == pytest.approx(1.75, abs=0.06)
+    assert (detection.cls, detection.cls_source, detection.heights[NETWORK].source) == ("person", "objects", "objects")
     # Geometry points are the walker's own ends: the soles (whose heights are under the ground
     # threshold, so the height map's cut stops 2 px short) and the crown; the box reaches them too.
     assert (y, y + h) == (150, 150 + 120)
     assert detection.foot_xy == pytest.approx((x + w / 2, 150 + 120))
     assert detection.top_xy == pytest.approx((x + w / 2, 150))
     assert not detection.touches_border
-    assert 0 < detection.height_noise_m < 0.5
+    assert 0 < detection.heights[NETWORK].noise_m < 0.5
     assert detection.mask.shape == (int(h), int(w)) and detection.mask.mean() > 0.8
     assert packet.foreground.shape == (HEIGHT, WIDTH)
 
@@ -84,13 +84,13 @@ def test_an_object_reaching_the_bottom_edge_has_its_foot_cut():
     walker_at_bottom = [[]] * 5 + [[(100 + 6 * i, HEIGHT - 100, 40, 100, 1.75)] for i in range(10)]
     detection = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), walker_at_bottom).detections[0]
     assert detection.touches_border and detection.foot_cut and not detection.top_cut
-    assert np.isfinite(detection.height_noise_m)     # the network still sees its top
+    assert np.isfinite(detection.heights[NETWORK].noise_m)     # the network still sees its top
 
 
 def test_an_object_reaching_the_top_edge_has_no_usable_height():
     walker_at_top = [[]] * 5 + [[(100 + 6 * i, 0, 40, 100, 1.75)] for i in range(10)]
     detection = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), walker_at_top).detections[0]
-    assert detection.top_cut and not detection.foot_cut and detection.height_noise_m == np.inf
+    assert detection.top_cut and not detection.foot_cut and detection.heights[NETWORK].noise_m == np.inf
 
 
 def test_a_walker_whose_height_map_ends_below_the_frame_top_has_no_usable_height():
@@ -105,7 +105,7 @@ def test_a_walker_whose_height_map_ends_below_the_frame_top_has_no_usable_height
         packet = extractor.process(_packet(index, image, heights, ground))
     legs = packet.detections[0]
     assert legs.box[1] >= 30                         # the blob starts below the frame's top
-    assert legs.top_cut and legs.height_noise_m == np.inf
+    assert legs.top_cut and legs.heights[NETWORK].noise_m == np.inf
 
 
 def test_moving_beyond_ends_needs_an_unbroken_run_to_the_edge():
@@ -219,7 +219,7 @@ def test_a_blob_whose_bottom_stands_above_the_ground_has_no_foot():
 def test_two_people_apart_are_two_detections():
     frames = [[(60 + 5 * i, 150, 40, 120, 1.6), (400 - 5 * i, 180, 40, 110, 1.9)] for i in range(12)]
     packet = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), frames)
-    heights = sorted(d.height_m for d in packet.detections)
+    heights = sorted(d.height() for d in packet.detections)
     assert heights == pytest.approx([1.6, 1.9], abs=0.06)
 
 
@@ -236,7 +236,7 @@ def test_moving_ground_level_change_is_not_an_object():
 def test_without_height_map_foreground_alone_gives_detections_without_height():
     packet = _run(ObjectExtractor(ObjectsConfig(), GroundConfig()), _walk(12), with_height=False)
     assert len(packet.detections) == 1
-    assert np.isnan(packet.detections[0].height_m)
+    assert packet.detections[0].heights == {}          # no height map: no network channel
     assert packet.detections[0].cls == "other"
 
 
@@ -245,7 +245,7 @@ def test_background_none_uses_the_height_map_alone():
     image, heights, ground = _scene(0, [(100, 150, 40, 120, 1.75)])
     packet = extractor.process(_packet(0, image, heights, ground))
     # The static 8 m building is above ground but taller than any mover: scenery, not an object.
-    assert [round(d.height_m, 1) for d in packet.detections] == [1.8]
+    assert [round(d.height(), 1) for d in packet.detections] == [1.8]
     assert packet.foreground is None
     with_building = ObjectExtractor(ObjectsConfig(background="none", max_object_height_m=10), GroundConfig())
     assert len(with_building.process(_packet(0, image, heights, ground)).detections) == 2
@@ -315,7 +315,7 @@ def test_height_consistency_residual_raises_the_noise():
                 curr = np.array([[x + 5 + i, y + 10 + 8 * i] for i in range(10)], np.float32)
                 packet.matches = FeatureMatches(curr - np.float32([6, 0]), curr, np.ones(10, bool))
             packet = extractor.process(packet)
-        noises[wobble] = packet.detections[0].height_noise_m
+        noises[wobble] = packet.detections[0].heights[NETWORK].noise_m
     assert noises[0.3] > noises[0.0] + 0.1
 
 
@@ -329,7 +329,7 @@ def test_a_global_brightness_jump_is_not_foreground():
             image = np.clip(image.astype(np.float32) * 1.5, 0, 255).astype(np.uint8)
         packet = extractor.process(_packet(index, image, heights, ground))
     assert packet.foreground.mean() < 0.1
-    assert [d.height_m for d in packet.detections] == [pytest.approx(1.75, abs=0.06)]
+    assert [d.height() for d in packet.detections] == [pytest.approx(1.75, abs=0.06)]
 
 
 def _group(x: int, y: int, count: int = 3) -> list[tuple[int, int, int, int, float]]:
@@ -399,7 +399,7 @@ def test_a_noisy_night_camera_is_denoised_and_its_walker_stays_one_detection():
         image, heights, ground = _scene(index, people, rng=np.random.default_rng(index))
         packet = extractor.process(_packet(index, noisy(image), heights, ground))
     assert len(packet.detections) == 1
-    assert packet.detections[0].height_m == pytest.approx(1.75, abs=0.06)
+    assert packet.detections[0].height() == pytest.approx(1.75, abs=0.06)
     # The crown and the soles come from a second, unfiltered background model (the filter shaves them).
     assert extractor._ends_subtractor is not None
     assert (packet.detections[0].top_xy[1], packet.detections[0].foot_xy[1]) == (150, 270)
@@ -414,13 +414,13 @@ def test_a_noisy_night_camera_is_denoised_and_its_walker_stays_one_detection():
 def test_the_box_runs_from_the_crown_to_the_soles_unless_the_frame_cuts_the_top():
     mask = np.zeros((30, 10), bool)
     mask[3:28, 2:8] = True                      # grown blob: rows 3-27 of the box (y 100-129)
-    detection = Detection(box=(50.0, 100.0, 10.0, 30.0), height_m=1.7, top_xy=(55.0, 103.0),
+    detection = Detection(box=(50.0, 100.0, 10.0, 30.0), top_xy=(55.0, 103.0),
                           foot_xy=(55.0, 133.0), mask=mask, outline=mask.copy())
     fit_box_to_ends(detection)
     assert detection.box == (50.0, 103.0, 10.0, 30.0)    # crown row 103 to the soles' edge 133
     assert detection.mask.shape == (30, 10) and detection.outline.shape == (30, 10)
     assert detection.mask[:25].all(axis=0).sum() == 6 and not detection.mask[25:].any()
-    cut = Detection(box=(50.0, 0.0, 10.0, 30.0), height_m=1.7, top_xy=(55.0, 4.0), foot_xy=(55.0, 30.0),
+    cut = Detection(box=(50.0, 0.0, 10.0, 30.0), top_xy=(55.0, 4.0), foot_xy=(55.0, 30.0),
                     mask=mask, top_cut=True)
     fit_box_to_ends(cut)
     assert cut.box == (50.0, 0.0, 10.0, 30.0) and cut.mask is mask

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from core.config import CameraConfig, load_config
-from core.packets import Detection, Frame, FramePacket, Track
+from core.packets import GEOMETRY, Detection, Frame, FramePacket, Track
 from stages.calibration import (angles_from_rotation, camera_for_run, camera_from_pose, intrinsics_from_fov,
                                 is_calibrated, load_calibration, pixel_to_ground, project_points,
                                 undistort_pixels)
@@ -204,14 +204,15 @@ def test_snippet_configures_a_self_calibrated_camera_that_measures_people(tmp_pa
     # New people measured through the self-calibrated camera: the prior's scale, honest noise.
     new_foot, new_top, _ = walking_people(camera, n_people=10, n_frames=1, seed=8,
                                           statures=np.full(10, 1.80))
-    detections = [Detection(box=(0, 0, 1, 1), height_m=float("nan"), cls="person", foot_xy=tuple(f), top_xy=tuple(t))
+    detections = [Detection(box=(0, 0, 1, 1), cls="person", foot_xy=tuple(f), top_xy=tuple(t))
                   for f, t in zip(new_foot, new_top)]
     packet = FramePacket(frame=Frame(0, 0.0, np.zeros((720, 1280, 3), np.uint8)), camera=run_camera,
                          detections=detections)
     GeometryMeasurer(config.camera).process(packet)
     for d in detections:
-        assert abs(d.geometry_height_m - 1.80) < 2.5 * d.geometry_noise_m
-        assert d.geometry_noise_m > 1.80 * result.height_std_m / result.height_m   # the scale's share
+        geometry = d.heights[GEOMETRY]
+        assert abs(geometry.value_m - 1.80) < 2.5 * geometry.noise_m
+        assert geometry.noise_m > 1.80 * result.height_std_m / result.height_m   # the scale's share
 
 
 def test_calibrate_command_reports_too_few_people(box_video, capsys):

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 from core.config import TrackingConfig
-from core.packets import CameraInfo, Detection, FeatureMatches, Frame, FramePacket
+from core.packets import BOX, GEOMETRY, NETWORK, CameraInfo, Detection, FeatureMatches, Frame, FramePacket, Measurement
 from stages.association import assign, iou_matrix
 from stages.tracking import ObjectTracker, TrackingStage
 
 
 def _detection(x: float, y: float, height_m: float, w: float = 30, h: float = 80,
                noise_m: float = 0.15, cls: str = "person") -> Detection:
-    return Detection(box=(x, y, w, h), height_m=height_m, cls=cls, height_noise_m=noise_m)
+    return Detection(box=(x, y, w, h), heights={NETWORK: Measurement(height_m, noise_m, "test")}, cls=cls)
 
 
 def _best_track(tracks, box):
@@ -250,7 +250,7 @@ def test_geometry_is_a_second_height_channel():
     tracker = ObjectTracker(TrackingConfig(min_hits=1))
     for frame in range(30):
         detection = _detection(10 + 2 * frame, 10, 1.70, noise_m=0.10)
-        detection.geometry_height_m, detection.geometry_noise_m = 1.80, 0.10
+        detection.add_height(GEOMETRY, Measurement(1.80, 0.10, "test"))
         detection.ground_xy_m = (1.0 + 0.1 * frame, 2.0)
         tracks = tracker.update([detection])
     # The channels disagree by 10 cm in every frame: a bias of one or both. The height settles
@@ -270,12 +270,12 @@ def test_geometry_is_a_second_height_channel():
                                                geometry_bias_factor=geometry_factor))
         for frame in range(30):
             detection = _detection(10 + 2 * frame, 10, 1.70, noise_m=0.10)
-            detection.geometry_height_m, detection.geometry_noise_m = 1.80, 0.10
+            detection.add_height(GEOMETRY, Measurement(1.80, 0.10, "test"))
             tracks = tracker.update([detection])
         assert tracks[0].height_m == pytest.approx(height, abs=0.01)
     only_geometry = ObjectTracker(TrackingConfig(min_hits=1))
     detection = _detection(10, 10, float("nan"), noise_m=float("inf"))
-    detection.geometry_height_m, detection.geometry_noise_m = 1.8, 0.1
+    detection.add_height(GEOMETRY, Measurement(1.8, 0.1, "test"))
     assert only_geometry.update([detection])[0].height_source == "geometry"
 
 
@@ -295,7 +295,7 @@ def test_a_network_bias_is_not_averaged_away_and_the_geometry_learns_it():
     for frame in range(60):
         detection = _detection(10 + 2 * frame, 10, 1.50 + rng.normal(0, 0.05), noise_m=0.05)
         if frame < 30:
-            detection.geometry_height_m, detection.geometry_noise_m = 1.75 + rng.normal(0, 0.05), 0.05
+            detection.add_height(GEOMETRY, Measurement(1.75 + rng.normal(0, 0.05), 0.05, "test"))
         tracks = tracker.update([detection])
     assert tracks[0].height_m == pytest.approx(1.75, abs=0.03)
     assert tracks[0].height_std_m < 0.055
@@ -322,7 +322,7 @@ def test_a_geometry_channel_rejected_every_frame_restarts_a_height_born_wrong():
         tracks = tracker.update([_detection(10 + frame, 10, 3.0, noise_m=0.2)])
     for frame in range(6, 40):
         detection = _detection(10 + frame, 10, 2.5, noise_m=0.2)
-        detection.geometry_height_m, detection.geometry_noise_m = 1.80, 0.04
+        detection.add_height(GEOMETRY, Measurement(1.80, 0.04, "test"))
         tracks = tracker.update([detection])
     assert len(tracks) == 1 and tracks[0].height_source == "fused"
     assert tracks[0].height_m == pytest.approx(1.80, abs=0.1)
@@ -334,8 +334,7 @@ def test_a_settled_height_outweighs_a_short_run_of_overshooting_boxes():
     tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
     for frame in range(50):
         detection = _detection(10 + frame, 10, float("nan"), noise_m=float("inf"))
-        detection.geometry_height_m = 1.80 if frame < 40 else 2.10
-        detection.geometry_noise_m = 0.04
+        detection.add_height(GEOMETRY, Measurement(1.80 if frame < 40 else 2.10, 0.04, "test"))
         tracks = tracker.update([detection])
     assert tracks[0].height_m == pytest.approx(1.80, abs=0.02)
 
@@ -345,13 +344,13 @@ def test_a_network_height_below_the_geometry_bound_is_raised_to_it():
     tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
     for frame in range(20):
         detection = _detection(10 + frame, 10, 1.40, noise_m=0.1)
-        detection.geometry_min_height_m = 1.70
+        detection.min_height_m = 1.70
         tracks = tracker.update([detection])
     assert tracks[0].height_m == pytest.approx(1.70, abs=0.01)
     vehicle = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
     for frame in range(20):                 # a vehicle's top is its far roof edge: no bound
         detection = _detection(10 + frame, 10, 1.40, w=120, h=60, noise_m=0.1, cls="vehicle")
-        detection.geometry_min_height_m = 1.70
+        detection.min_height_m = 1.70
         tracks = vehicle.update([detection])
     assert tracks[0].height_m == pytest.approx(1.40, abs=0.01)
 
@@ -362,8 +361,7 @@ def test_a_walkers_geometry_heights_are_averaged_not_windowed():
     tracker = ObjectTracker(TrackingConfig(min_hits=1))
     for frame in range(40):
         detection = _detection(10 + 2 * frame, 10, float("nan"), noise_m=float("inf"))
-        detection.geometry_height_m = 1.70 if frame % 2 else 1.90
-        detection.geometry_noise_m = 0.04
+        detection.add_height(GEOMETRY, Measurement(1.70 if frame % 2 else 1.90, 0.04, "test"))
         tracks = tracker.update([detection])
     assert tracks[0].cls == "person" and tracks[0].height_m == pytest.approx(1.80, abs=0.02)
 
@@ -375,7 +373,7 @@ def test_a_track_that_turns_out_a_vehicle_drops_the_geometry_it_took_as_a_cyclis
     for frame in range(30):
         cls = "cyclist" if frame < 6 else "vehicle"
         detection = _detection(10 + 2 * frame, 10, 1.50, w=60, h=50, noise_m=0.6, cls=cls)
-        detection.geometry_height_m, detection.geometry_noise_m = 3.10, 0.14
+        detection.add_height(GEOMETRY, Measurement(3.10, 0.14, "test"))
         tracks = tracker.update([detection])
     assert tracks[0].cls == "vehicle"
     assert tracks[0].height_m == pytest.approx(1.50, abs=0.1)
@@ -389,8 +387,8 @@ def test_a_vehicle_track_is_measured_by_its_box_not_by_foot_and_top():
     tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
     for frame in range(30):
         detection = _detection(10 + 2 * frame, 10, 1.30, w=80, h=50, noise_m=0.5, cls="vehicle")
-        detection.geometry_height_m, detection.geometry_noise_m, detection.geometry_bias_m = 3.0, 0.1, 0.05
-        detection.vehicle_height_m, detection.vehicle_noise_m, detection.vehicle_bias_m = 2.2, 0.3, 0.2
+        detection.add_height(GEOMETRY, Measurement(3.0, 0.1, "test", bias_m=0.05))
+        detection.add_height(BOX, Measurement(2.2, 0.3, "test", bias_m=0.2))
         tracks = tracker.update([detection])
     assert tracks[0].cls == "vehicle"
     assert tracks[0].height_source == "fused"
@@ -406,7 +404,7 @@ def test_a_box_whose_length_was_assumed_must_lie_along_the_tracks_way(axis, used
     for frame in range(20):
         detection = _detection(100, 10 + 3 * frame, 1.0, w=60, h=50, noise_m=0.5, cls="vehicle")
         detection.ground_xy_m = (0.0, 10.0 + 0.5 * frame)               # it moves along y
-        detection.vehicle_height_m, detection.vehicle_noise_m, detection.vehicle_bias_m = 1.5, 0.4, 0.35
+        detection.add_height(BOX, Measurement(1.5, 0.4, "test", bias_m=0.35))
         detection.vehicle_axis_xy, detection.vehicle_length_assumed = axis, True
         tracks = tracker.update([detection])
     assert (tracks[0].height_source == "fused") == used
@@ -416,7 +414,7 @@ def test_a_box_reading_does_not_measure_a_walker():
     tracker = ObjectTracker(TrackingConfig(min_hits=1, stature_window=0))
     for frame in range(20):
         detection = _detection(10 + 2 * frame, 10, 1.75, noise_m=0.1)
-        detection.vehicle_height_m, detection.vehicle_noise_m, detection.vehicle_bias_m = 1.0, 0.3, 0.2
+        detection.add_height(BOX, Measurement(1.0, 0.3, "test", bias_m=0.2))
         tracks = tracker.update([detection])
     assert tracks[0].height_source == "network"
     assert tracks[0].height_m == pytest.approx(1.75, abs=0.02)
@@ -467,8 +465,7 @@ def test_the_geometry_bias_prior_is_its_per_object_part_not_the_shared_camera_he
     tracker = ObjectTracker(TrackingConfig(min_hits=1))
     for frame in range(30):
         detection = _detection(10 + 2 * frame, 10, 1.50, noise_m=0.10)
-        detection.geometry_height_m, detection.geometry_noise_m = 1.80, 0.30
-        detection.geometry_bias_m = 0.05
+        detection.add_height(GEOMETRY, Measurement(1.80, 0.30, "test", bias_m=0.05))
         tracks = tracker.update([detection])
     prior_n, prior_g = 0.2 * 1.50, 0.05
     expected = (prior_n ** 2 * 1.80 + prior_g ** 2 * 1.50) / (prior_n ** 2 + prior_g ** 2)
@@ -482,7 +479,7 @@ def test_damaged_frames_carry_the_track_but_fuse_no_height():
     for i in range(20):
         damage = "decoder flags it corrupt" if i >= 10 else ""
         detection = _detection(10 + 3 * i, 10, 3.0 if damage else 1.7)   # concealment: a wild height
-        detection.geometry_height_m, detection.geometry_noise_m = detection.height_m, 0.1
+        detection.add_height(GEOMETRY, Measurement(detection.height(), 0.1, "test"))
         packet = stage.process(FramePacket(Frame(i, i / 10, image, damage=damage), CameraInfo(320, 240),
                                            detections=[detection]))
         assert len(packet.tracks) == 1

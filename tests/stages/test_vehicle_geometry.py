@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from core.config import CameraConfig
-from core.packets import Detection, Frame, FramePacket
+from core.packets import BOX, Detection, Frame, FramePacket
 from stages.calibration import camera_from_pose, heights_from_foot_top, intrinsics_from_fov, project_points
 from stages.geometry import GeometryMeasurer
 from stages.vehicle_geometry import vehicle_box
@@ -43,7 +43,7 @@ def box_outline(camera, centre, yaw_deg, length, width, height, cabin=None, clea
 
 
 # Seen from the side the lower outline runs under the wheels, below the plane its points are put
-# on (BODY_CLEARANCE_M): the footprint comes out nearer and the height ~0.15 m high.
+# on (body_clearance_m): the footprint comes out nearer and the height ~0.15 m high.
 SIDE_VIEW_TOLERANCE_M = 0.2
 OBLIQUE_TOLERANCE_M = 0.1
 
@@ -112,16 +112,17 @@ def test_too_small_an_outline_gives_nothing():
 def test_the_geometry_stage_adds_a_box_reading_to_wide_whole_objects_only():
     mask, origin = box_outline(CAMERA, (2.0, 18.0), 30.0, 4.4, 1.8, 1.5, cabin=(2.3, 1.6, 0.9))
     h, w = mask.shape
-    car = Detection(box=(*origin, float(w), float(h)), height_m=1.0, foot_xy=(origin[0] + w / 2, origin[1] + h),
+    car = Detection(box=(*origin, float(w), float(h)), foot_xy=(origin[0] + w / 2, origin[1] + h),
                     top_xy=(origin[0] + w / 2, origin[1]), mask=mask, outline=mask)
-    cut = Detection(box=(*origin, float(w), float(h)), height_m=1.0, foot_xy=(origin[0] + w / 2, origin[1] + h),
+    cut = Detection(box=(*origin, float(w), float(h)), foot_xy=(origin[0] + w / 2, origin[1] + h),
                     top_xy=(origin[0] + w / 2, origin[1]), mask=mask, outline=mask, touches_border=True)
     person_mask = np.ones((60, 12), bool)
-    person = Detection(box=(640.0, 300.0, 12.0, 60.0), height_m=1.0, foot_xy=(646.0, 360.0), top_xy=(646.0, 300.0),
+    person = Detection(box=(640.0, 300.0, 12.0, 60.0), foot_xy=(646.0, 360.0), top_xy=(646.0, 300.0),
                        mask=person_mask, outline=person_mask)
     image = np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8)
     GeometryMeasurer(CameraConfig()).process(FramePacket(frame=Frame(0, 0.0, image), camera=CAMERA,
                                                          detections=[car, cut, person]))
-    assert car.vehicle_height_m == pytest.approx(1.5, abs=OBLIQUE_TOLERANCE_M)
-    assert car.vehicle_noise_m > car.vehicle_bias_m > 0
-    assert cut.vehicle_height_m is None and person.vehicle_height_m is None
+    box = car.heights[BOX]
+    assert box.value_m == pytest.approx(1.5, abs=OBLIQUE_TOLERANCE_M) and box.source == "vehicle geometry"
+    assert box.noise_m > box.bias_m > 0
+    assert BOX not in cut.heights and BOX not in person.heights
