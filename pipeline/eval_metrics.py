@@ -445,7 +445,7 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
 # Detections: object extraction's boxes before tracking
 # --------------------------------------------------------------------------------------------
 
-DETECTION_COUNTS = ("truths", "found", "found_same_class", "detections", "correct", "correct_class")
+DETECTION_COUNTS = ("truths", "found", "found_class", "detections", "correct", "correct_class")
 """Per group: required truth boxes; of them, matched by a detection (any class) and by a detection
 of their class; detections (those on a don't-care box left out); of them, matched to a required
 truth box (any class) and to one of their own class."""
@@ -477,7 +477,7 @@ def frame_detection_counts(truth: list[TruthBox], detections: list[DetectionBox]
     counts: dict[str, Counter] = defaultdict(Counter)
     for i, t in enumerate(cared):
         for group in ("all", f"class {t.cls}", size_group(t.box)):
-            counts[group].update(truths=1, found=int(i in found), found_same_class=int(i in found_cls))
+            counts[group].update(truths=1, found=int(i in found), found_class=int(i in found_cls))
     for j, d in enumerate(detections):
         for group in ("all", f"class {d.cls}", size_group(d.box)):
             counts[group].update(detections=1, correct=int(j in correct), correct_class=int(j in correct_cls))
@@ -525,7 +525,7 @@ def detection_scores(runs: list[SequenceRun], min_visibility: float, min_box_px:
         table[group] = {**{k: int(c[k]) for k in DETECTION_COUNTS},
                         "recall": _share(c["found"], c["truths"]),
                         "precision": _share(c["correct"], c["detections"]),
-                        "class_recall": _share(c["found_same_class"], c["truths"]),
+                        "class_recall": _share(c["found_class"], c["truths"]),
                         "class_precision": _share(c["correct_class"], c["detections"])}
     return table
 

@@ -53,7 +53,7 @@ def table():
     return detection_scores(_runs(), min_visibility=0.3, min_box_px=0.0)
 
 
-# group: (truths, found, found_same_class, detections, correct, correct_class)
+# group: (truths, found, found_class, detections, correct, correct_class)
 EXPECTED = {
     "all":              (7, 4, 3, 7, 4, 3),
     "class person":     (5, 3, 2, 3, 2, 2),
@@ -74,7 +74,7 @@ EXPECTED = {
 @pytest.mark.parametrize("group", sorted(EXPECTED))
 def test_counts_per_group(table, group):
     row = table[group]
-    counts = (row["truths"], row["found"], row["found_same_class"], row["detections"], row["correct"],
+    counts = (row["truths"], row["found"], row["found_class"], row["detections"], row["correct"],
               row["correct_class"])
     assert counts == EXPECTED[group]
 
