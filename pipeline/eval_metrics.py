@@ -8,6 +8,8 @@
 * Occlusions: objects hidden for a while and seen again, whether their track kept its id and
   its height.
 * Misses: every required box by what became of it.
+* Detections: recall and precision of object extraction's boxes before tracking, class-agnostic
+  and class-aware, per class, box height, camera height, weather and time of day.
 
 Ground-truth boxes that are mostly hidden or too small are "don't care": neither required nor
 penalised, and a track box on one is dropped (as MOTChallenge does with occluded boxes).
@@ -23,7 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from core.errors import HeightpipeError
-from pipeline.eval_sequences import SequenceRun, TruthBox
+from pipeline.eval_sequences import EVAL_CLASSES, DetectionBox, SequenceRun, TruthBox
 
 MATCH_IOU = 0.5
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
@@ -55,22 +57,27 @@ def cared_for(truth: TruthBox, min_visibility: float, min_box_px: float) -> bool
     return truth.visibility >= min_visibility and truth.box[3] >= min_box_px
 
 
-def mot_data(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -> dict:
-    """One sequence in trackeval's per-sequence format, with don't-care boxes removed."""
+def on_dont_care(cared: list[TruthBox], ignored: list[TruthBox], boxes) -> set[int]:
+    """Indices of the ``boxes`` that best explain a don't-care truth box (one-to-one over all the
+    truth, IoU >= ``MATCH_IOU``): neither true nor false positives, so left out of the scores."""
     from scipy.optimize import linear_sum_assignment
 
+    if not ignored or len(boxes) == 0:
+        return set()
+    iou = iou_matrix([t.box for t in cared + ignored], boxes)
+    rows, cols = linear_sum_assignment(-iou)
+    return {int(c) for r, c in zip(rows, cols) if r >= len(cared) and iou[r, c] >= MATCH_IOU}
+
+
+def mot_data(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -> dict:
+    """One sequence in trackeval's per-sequence format, with don't-care boxes removed."""
     gt_ids, tracker_ids, similarity = [], [], []
     for frame in run.frames:
         cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
         ignored = [t for t in frame.truth if not cared_for(t, min_visibility, min_box_px)]
         outputs = [o for o in frame.tracks if o.updated]
-        if ignored and outputs:
-            # A track box that best explains a don't-care box is neither TP nor FP.
-            everything = cared + ignored
-            iou = iou_matrix([t.box for t in everything], [o.box for o in outputs])
-            rows, cols = linear_sum_assignment(-iou)
-            drop = {c for r, c in zip(rows, cols) if r >= len(cared) and iou[r, c] >= MATCH_IOU}
-            outputs = [o for i, o in enumerate(outputs) if i not in drop]
+        drop = on_dont_care(cared, ignored, [o.box for o in outputs])
+        outputs = [o for i, o in enumerate(outputs) if i not in drop]
         gt_ids.append([t.object_id for t in cared])
         tracker_ids.append([o.track_id for o in outputs])
         similarity.append(iou_matrix([t.box for t in cared], [o.box for o in outputs]))
@@ -365,6 +372,29 @@ def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames:
 # Misses: why a required object had no track box
 # --------------------------------------------------------------------------------------------
 
+SIZE_BANDS_PX = (40.0, 80.0, 160.0)
+"""Edges of the box-height bands (pixels) that the misses and the detection scores are broken down by."""
+
+
+def size_group(box) -> str:
+    """The group of a box by its height in pixels: "box < 40 px", "box 40-80 px", ... "box >= 160 px"."""
+    edges = SIZE_BANDS_PX
+    band = int(np.searchsorted(edges, box[3], side="right"))
+    if band == 0:
+        return f"box < {edges[0]:g} px"
+    if band == len(edges):
+        return f"box >= {edges[-1]:g} px"
+    return f"box {edges[band - 1]:g}-{edges[band]:g} px"
+
+
+SIZE_GROUPS = tuple(size_group((0, 0, 0, h)) for h in (0.0, *SIZE_BANDS_PX))
+
+
+def scene_groups(run: SequenceRun) -> tuple[str, str, str]:
+    """The groups a whole sequence belongs to: camera height, weather, time of day."""
+    return f"camera at {run.camera_height_m:.1f} m", f"weather {run.weather}", run.time_of_day
+
+
 MISS_KINDS = ("tracked", "detected, no track", "merged with others", "box off", "not detected")
 
 
@@ -417,12 +447,98 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
                     kind = "merged with others" if (cover > CONSTANTS.miss_cover_share).sum() >= 2 else "box off"
                 else:
                     kind = "not detected"
-                h = truth.box[3]
-                size = "< 40" if h < 40 else ("40-80" if h < 80 else ">= 80")
-                for group in ("all", f"class {truth.cls}", f"box {size} px", f"{run.time_of_day}",
-                              f"weather {run.weather}", f"camera at {run.camera_height_m:.1f} m"):
+                for group in ("all", f"class {truth.cls}", size_group(truth.box), *scene_groups(run)):
                     counts[group][kind] += 1
     return {group: {kind: int(c[kind]) for kind in MISS_KINDS} for group, c in counts.items()}
+
+
+# --------------------------------------------------------------------------------------------
+# Detections: object extraction's boxes before tracking
+# --------------------------------------------------------------------------------------------
+
+DETECTION_COUNTS = ("truths", "found", "found_class", "detections", "correct", "correct_class")
+"""Per group: required truth boxes; of them, matched by a detection (any class) and by a detection
+of their class; detections (those on a don't-care box left out); of them, matched to a required
+truth box (any class) and to one of their own class."""
+
+
+def frame_detection_counts(truth: list[TruthBox], detections: list[DetectionBox],
+                           min_visibility: float, min_box_px: float = 0.0) -> dict[str, Counter]:
+    """One frame's detections against its required truth boxes, counted per group (``DETECTION_COUNTS``).
+
+    One-to-one matching at IoU >= 0.5 (``matched_at_iou``), once over all boxes (class-agnostic)
+    and once within each class (class-aware: a detection only counts for an object of its class).
+    A truth box is counted in its class's and size's groups, a detection in those of the class
+    and size it claims; "all" holds both. A detection that best explains a don't-care truth box
+    is neither correct nor wrong, as in the MOT metrics.
+    """
+    cared = [t for t in truth if cared_for(t, min_visibility, min_box_px)]
+    ignored = [t for t in truth if not cared_for(t, min_visibility, min_box_px)]
+    drop = on_dont_care(cared, ignored, [d.box for d in detections])
+    detections = [d for i, d in enumerate(detections) if i not in drop]
+    pairs = matched_at_iou([t.box for t in cared], [d.box for d in detections])
+    same_class = []
+    for cls in sorted({t.cls for t in cared} & {d.cls for d in detections}):
+        rows = [i for i, t in enumerate(cared) if t.cls == cls]
+        cols = [j for j, d in enumerate(detections) if d.cls == cls]
+        same_class += [(rows[r], cols[c]) for r, c in
+                       matched_at_iou([cared[i].box for i in rows], [detections[j].box for j in cols])]
+    found, found_cls = {r for r, _ in pairs}, {r for r, _ in same_class}
+    correct, correct_cls = {c for _, c in pairs}, {c for _, c in same_class}
+    counts: dict[str, Counter] = defaultdict(Counter)
+    for i, t in enumerate(cared):
+        for group in ("all", f"class {t.cls}", size_group(t.box)):
+            counts[group].update(truths=1, found=int(i in found), found_class=int(i in found_cls))
+    for j, d in enumerate(detections):
+        for group in ("all", f"class {d.cls}", size_group(d.box)):
+            counts[group].update(detections=1, correct=int(j in correct), correct_class=int(j in correct_cls))
+    return counts
+
+
+def _share(part: int, whole: int) -> float | None:
+    return part / whole if whole else None
+
+
+def detection_scores(runs: list[SequenceRun], min_visibility: float, min_box_px: float = 0.0) -> dict[str, dict]:
+    """Recall and precision of the detections (before tracking), per group: all; class (person,
+    cyclist, vehicle); box height band; and, sequence by sequence, camera height, weather, time
+    of day (the groups of the HOTA table).
+
+    ``recall`` = required truth boxes matched / required truth boxes, ``precision`` = detections
+    matched / detections; ``class_recall`` and ``class_precision`` the same when a match needs the
+    class right too. None where the group has nothing to divide by. Summed over all frames.
+
+    Next to HOTA it separates the two ways tracking is lost: an object the detector never gave
+    the tracker (low recall here) versus one detected and then not followed (association).
+    """
+    totals: dict[str, Counter] = defaultdict(Counter)
+    for run in runs:
+        for frame in run.frames:
+            for group, counts in frame_detection_counts(frame.truth, frame.detections,
+                                                        min_visibility, min_box_px).items():
+                totals[group].update(counts)
+                if group == "all":
+                    for scene in scene_groups(run):
+                        totals[scene].update(counts)
+
+    def order(group: str) -> tuple:
+        classes = [f"class {c}" for c in EVAL_CLASSES]
+        for rank, known in enumerate((["all"], classes, list(SIZE_GROUPS))):
+            if group in known:
+                return rank, known.index(group), group
+        if group.startswith("class "):
+            return 1, len(classes), group
+        return 3, 0, group
+
+    table = {}
+    for group in sorted(totals, key=order):
+        c = totals[group]
+        table[group] = {**{k: int(c[k]) for k in DETECTION_COUNTS},
+                        "recall": _share(c["found"], c["truths"]),
+                        "precision": _share(c["correct"], c["detections"]),
+                        "class_recall": _share(c["found_class"], c["truths"]),
+                        "class_precision": _share(c["correct_class"], c["detections"])}
+    return table
 
 
 # --------------------------------------------------------------------------------------------
@@ -437,7 +553,7 @@ def sequence_groups(runs: list[SequenceRun]) -> dict[str, list[int]]:
     """
     groups: dict[str, list[int]] = defaultdict(list)
     for index, run in enumerate(runs):
-        for group in (f"camera at {run.camera_height_m:.1f} m", f"weather {run.weather}", run.time_of_day):
+        for group in scene_groups(run):
             groups[group].append(index)
     return dict(sorted(groups.items()))
 
@@ -469,5 +585,6 @@ def evaluate(runs: list[SequenceRun], min_visibility: float = 0.3, min_frames: i
         "height_by_weather": by_weather,
         "occlusions": events,
         "misses": miss_breakdown(runs, min_visibility, min_box_px),
+        "detection": detection_scores(runs, min_visibility, min_box_px),
         "objects": [asdict(o) for o in objects],
     }

@@ -22,6 +22,23 @@ def format_misses(breakdown: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def format_detections(table: dict[str, dict]) -> str:
+    """The detection scores (``eval_metrics.detection_scores``): recall and precision before
+    tracking, of any class and with the class right (class-), per group."""
+    widths = {"recall": 8, "precision": 11, "class_recall": 14, "class_precision": 17}
+
+    def share(value: float | None, width: int) -> str:
+        return f"{'-' if value is None else f'{value:.3f}':>{width}}"
+
+    lines = [f"  {'detection before tracking (IoU 0.5)':<40}"
+             + "".join(f"{key.replace('_', '-'):>{width}}" for key, width in widths.items())
+             + f"{'boxes':>8}{'detections':>12}"]
+    for group, row in table.items():
+        lines.append(f"    {group:<38}" + "".join(share(row[key], width) for key, width in widths.items())
+                     + f"{row['truths']:8d}{row['detections']:12d}")
+    return "\n".join(lines)
+
+
 def _cm(value: float | None) -> str:
     return "   -  " if value is None else f"{100 * value:6.1f}"
 
@@ -36,7 +53,6 @@ def format_report(report: dict) -> str:
         f"  HOTA {mot['HOTA']:.3f}  (DetA {mot['DetA']:.3f}, AssA {mot['AssA']:.3f})  "
         f"MOTA {mot['MOTA']:.3f}  IDF1 {mot['IDF1']:.3f}  ID switches {mot['IDSW']}  "
         f"FP {mot['false_positives']}  misses {mot['misses']} / {mot['gt_dets']}  [{mot['engine']}]",
-        "  height error (cm), median over objects      tracked  single-frame  objects",
     ]
 
     def row(label: str, summary: dict) -> str:
@@ -45,9 +61,12 @@ def format_report(report: dict) -> str:
 
     by_group = report.get("mot_by_group", {})
     if len(report["sequences"]) > 1:
-        lines.insert(2, "  tracking by group                           HOTA    IDF1  sequences")
-        lines[3:3] = [f"    {group:<38} {mot['HOTA']:.3f}   {mot['IDF1']:.3f}     {mot['sequences']:4d}"
-                      for group, mot in by_group.items()]
+        lines.append("  tracking by group                           HOTA    IDF1  sequences")
+        lines += [f"    {group:<38} {mot['HOTA']:.3f}   {mot['IDF1']:.3f}     {mot['sequences']:4d}"
+                  for group, mot in by_group.items()]
+    if report.get("detection"):
+        lines.append(format_detections(report["detection"]))
+    lines.append("  height error (cm), median over objects      tracked  single-frame  objects")
     lines.append(row("all", report["height_all"]))
     for cls, summary in report["height_by_class"].items():
         lines.append(row(f"class {cls}", summary))

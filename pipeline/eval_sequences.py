@@ -16,10 +16,17 @@ import numpy as np
 
 from core.config import Config
 from core.packets import NETWORK
+from synth.dataset import COARSE_CLASS
 
-# Generator classes in the tracker's coarse terms.
-COARSE_CLASS = {"pedestrian": "person", "cyclist": "cyclist", "car": "vehicle", "van": "vehicle",
-                "truck": "vehicle", "bus": "vehicle"}
+# The classes evaluation scores: the generator's (pedestrian, car, ...) and the pipeline's
+# (object extraction's ``coarse_class``) both come down to these; anything else is "other".
+EVAL_CLASSES = ("person", "cyclist", "vehicle")
+
+
+def eval_class(name: str) -> str:
+    """person / cyclist / vehicle / other, from a generator class or a pipeline detection's class."""
+    name = COARSE_CLASS.get(name, name)
+    return name if name in EVAL_CLASSES else "other"
 
 
 @dataclass
@@ -47,6 +54,14 @@ class OutputBox:
 class DetectionBox:
     box: tuple[float, float, float, float]
     height_m: float
+    cls: str = "other"
+    """Evaluation class (``eval_class``) that object extraction gave it."""
+
+
+def detection_record(detection) -> DetectionBox:
+    """What evaluation keeps of one pipeline detection (``core.packets.Detection``): box, height,
+    class. The one place that reads a detection, so a change to its fields is one edit here."""
+    return DetectionBox(tuple(map(float, detection.box)), detection.height(NETWORK), eval_class(detection.cls))
 
 
 @dataclass
@@ -157,13 +172,13 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
                 if sink is not None:
                     sink.write(packet)
                 run.frames.append(FrameRecord(
-                    truth=[TruthBox(o.id, COARSE_CLASS.get(o.cls, "other"), tuple(map(float, o.box)),
+                    truth=[TruthBox(o.id, eval_class(o.cls), tuple(map(float, o.box)),
                                     float(o.visible_fraction), float(o.height_m))
                            for o in sequence.objects(packet.frame.index)],
                     tracks=[OutputBox(t.track_id, tuple(map(float, t.box)), t.height_m, t.height_std_m,
                                       t.cls, t.height_source, t.updated)
                             for t in packet.tracks if t.confirmed],
-                    detections=[DetectionBox(tuple(map(float, d.box)), d.height(NETWORK)) for d in packet.detections],
+                    detections=[detection_record(d) for d in packet.detections],
                 ))
     finally:
         if sink is not None:

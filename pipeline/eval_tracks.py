@@ -14,6 +14,9 @@ the shipped network or, with ``--heights oracle``, from the ground-truth height 
   its height.
 * Misses (``--misses``): every required box by what became of it (tracked, detected but not
   tracked, merged with other objects, box off, not detected), per class, size and scene.
+* Detections before tracking: recall and precision of object extraction's boxes (IoU 0.5), of
+  any class and with the class right, per class, box height, camera height, weather and time of
+  day, printed after the HOTA/IDF1 table and under "detection" in ``--json``.
 
 Ground-truth boxes that are mostly hidden (``--min-visibility``) are "don't care": they are
 neither required nor penalised, and a track box on one is dropped (as MOTChallenge does with
