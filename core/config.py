@@ -369,6 +369,9 @@ class TrainV2Config:
     """Dilations of residual context blocks at 1/16 (the receptive field tall objects need)."""
     detection: bool = True
     """Detection head (centre heatmaps + boxes per class) trained with the offsets."""
+    refine: int = 8
+    """Channels of the full-resolution refinement of offsets and ground (0 = none): half-resolution
+    outputs blur thin objects (people, cyclists) into the ground around them."""
     crop_probability: float = 0.5
     """Share of samples that are native-resolution windows around a mover (else whole frames)."""
     max_matches: int = 64
