@@ -9,13 +9,14 @@ foreground; a motion blob that no network box covers is no object unless
 ``objects.keep_motion_blobs`` says so (``uncovered_blobs``).
 
 Each box is measured like a blob (``stages.object_measurements``): its own pixels are the box's
-pixels above the ground, its single-frame height the robust top of the height map on them. With
-the camera above the object, whatever the box shows behind the object lies lower than the
-object's own point on the same ray (the ray descends past it), so the box's top height is the
-object's. The geometry's foot and top are the box's bottom and top centres (the network's
-sub-pixel box, not the pixels it covers). Heights outside ``objects.min_object_height_m`` ..
+pixels above the ground, its single-frame height the robust top of the height map on them. Scenery
+seen past the object inside the box does not raise it when the camera is above the object: a ray
+through the box passes the object's vertical no higher than its top (the box's rows run from
+the crown down) and descends from there, so what it meets behind stands lower. The geometry's
+foot and top are the box's bottom and top centres (the network's sub-pixel box, not the pixels
+it covers). Heights outside ``objects.min_object_height_m`` ..
 ``max_object_height_m`` are no measurement (the height map failed on the object; it stays an
-object); a box reaching the image's edge is cut there, as a blob is.
+object); a box whose top or bottom centre reaches the image's edge is cut there, as a blob is.
 """
 
 from __future__ import annotations
@@ -163,9 +164,13 @@ def _measure_box(box: np.ndarray, corners: tuple[int, int, int, int], own: np.nd
                  height_map: np.ndarray | None, edge: np.ndarray, config: ObjectsConfig) -> Detection:
     """The detection of one kept box: the pixels it covers, its ends, its cuts, its height."""
     x0, y0, x1, y1 = corners
+    centre_x = float(box[0] + box[2]) / 2.0
     at_edge = edge[y0:y1, x0:x1]
     touches_border = bool(at_edge.any())
-    top_cut, foot_cut = bool(at_edge[0].any()), bool(at_edge[-1].any())
+    # The ends are the top and bottom centres: cut where the image may end there (a box at the
+    # frame's side touches it, but its top and foot are still in view).
+    column = min(max(int(centre_x), x0), x1 - 1) - x0
+    top_cut, foot_cut = bool(at_edge[0, column]), bool(at_edge[-1, column])
     measured = {}
     if height_map is not None:
         heights = height_map[y0:y1, x0:x1]
@@ -176,7 +181,6 @@ def _measure_box(box: np.ndarray, corners: tuple[int, int, int, int], own: np.nd
             if top_cut:
                 noise_m = float("inf")    # top cut off by the frame: a lower bound, not a height
             measured[NETWORK] = Measurement(height_m, noise_m, source="objects")
-    centre_x = float(box[0] + box[2]) / 2.0
     return Detection(
         box=(float(x0), float(y0), float(x1 - x0), float(y1 - y0)),
         heights=measured,
