@@ -16,9 +16,9 @@ class HeightEstimator:
     A v1 network's heights need only the camera height; a v2 network's ground-contact offsets
     need the whole camera (``stages/contact_heights.py``), and the packet then says which one
     was used (``packet.height_camera``). A network with a detection head also hands on its
-    detections (``packet.network_detections``, frame pixels). ``camera`` (the run's) lets a v2 model without any
-    camera fail when the stage is built, not at the first frame; ``assumed_camera_ok`` lets it
-    decode with an assumed camera height (``heightpipe calibrate``).
+    detections (``packet.network_detections``, frame pixels). ``camera`` (the run's) lets a v2
+    model without any camera fail when the stage is built, not at the first frame;
+    ``assumed_camera_ok`` lets it decode with an assumed camera height (``heightpipe calibrate``).
     """
 
     def __init__(self, model: HeightNetModel, camera: CameraInfo | None = None,
