@@ -82,8 +82,25 @@ class MatchingConfig:
 
 @dataclass
 class ObjectsConfig:
-    """Object extraction: moving, above-ground blobs of each frame become detections."""
+    """Object extraction: each frame's objects become detections, from moving above-ground blobs
+    (``source = "blobs"``) or the height network's detection head (``"network"``)."""
 
+    source: str = "blobs"
+    """'blobs': moving, above-ground blobs are the objects; 'network': the height network's own
+    detections are (a v2 model with a detection head), motion only confirms weak ones."""
+    score_person: float = 0.4
+    """Network mode: a person box scoring at least this is an object, moving or not."""
+    score_cyclist: float = 0.4
+    """Network mode: the same for cyclists."""
+    score_vehicle: float = 0.4
+    """Network mode: the same for vehicles."""
+    score_motion: float = 0.15
+    """Network mode: a weaker box scoring at least this is an object while it moves (``moving_share``)."""
+    moving_share: float = 0.3
+    """Network mode: a weak box moves when at least this share of its pixels above the ground is
+    foreground (all its pixels without a height map)."""
+    keep_motion_blobs: bool = False
+    """Network mode: a moving blob that no network box covers is an object too (its class from its shape)."""
     background: str = "knn"
     """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
     work_width: int = 320
@@ -449,8 +466,15 @@ def _coerce(where: str, value: Any, annotation: Any) -> Any:
     return value
 
 
-MOVED_KEYS = {("tracking", f.name): "objects" for f in dataclasses.fields(ObjectsConfig)}
-"""(old section, key) -> the section that holds the key now (object extraction left [tracking])."""
+MOVED_KEYS = {("tracking", name): "objects" for name in (
+    "background", "work_width", "background_prime_frames", "background_prime_s", "height_percentile",
+    "min_area_px", "min_object_height_m", "max_object_height_m", "min_foreground_share",
+    "min_foreground_piece_px", "height_measurement_noise_m", "consistency_gain")}
+"""(old section, key) -> the section that holds the key now (object extraction left [tracking];
+keys added to [objects] since were never in [tracking])."""
+NETWORK_OBJECTS_KEYS = ("score_person", "score_cyclist", "score_vehicle", "score_motion", "moving_share",
+                        "keep_motion_blobs")
+"""[objects] keys that only ``source = "network"`` reads."""
 
 
 def _rule(values: Any, where: str) -> RuleConfig:

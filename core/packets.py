@@ -94,6 +94,26 @@ class FeatureMatches:
     """2x3 affine of the static background from the previous to this frame (shake)."""
 
 
+@dataclass(frozen=True)
+class NetworkDetections:
+    """The height network's own detections in one frame (its detection head: centre-heatmap peaks
+    with their boxes), columns of equal length, before object extraction applies its thresholds.
+
+    Boxes are in source-frame pixels (pixel edges: a box over the whole frame is 0, 0, W, H),
+    mapped back from the network's input through the squash the frame was resized with.
+    """
+
+    boxes: np.ndarray
+    """N x 4 float32: x0, y0, x1, y1."""
+    classes: tuple[str, ...]
+    """The network's class of each box ("person", "cyclist", "vehicle": the model's metadata names them)."""
+    scores: np.ndarray
+    """N float32: the centre heatmap's probability at the peak."""
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+
 # Height channels of the shipped stages: the keys of ``Detection.heights`` and what a track's
 # ``height_source`` names. A stage may add a channel of any other name; the tracker fuses it as a
 # measurement of its own (its own bias on each object) with no edit anywhere else.
@@ -144,12 +164,14 @@ class Detection:
     channel a stage adds): each written by the stage that measured it (``add_height``), fused by
     the tracker."""
     score: float = 1.0
+    """The network's score for a detection of its head (``NetworkDetections``); 1 for a blob's."""
     cls: str = "other"
     """Coarse class (``OBJECT_CLASSES``); the tracker votes over frames."""
     cls_source: str = ""
     """The stage that decided ``cls``: "objects" (the network's height and the box's shape),
-    "geometry" (metres, calibrated cameras), "tracking" (a merged blob's piece takes its track's);
-    "" where the detection was made by hand."""
+    "network" (the height network's detection head, ``objects.source = "network"``: no later
+    stage reclassifies it), "geometry" (metres, calibrated cameras), "tracking" (a merged blob's
+    piece takes its track's); "" where the detection was made by hand."""
     foot_xy: tuple[float, float] | None = None
     """Image point where the object touches the ground."""
     top_xy: tuple[float, float] | None = None
@@ -230,6 +252,8 @@ class FramePacket:
     image_valid: np.ndarray | None = None
     """H x W bool: pixels that carry image (undistortion leaves black corners); None = all."""
     matches: FeatureMatches | None = None
+    network_detections: NetworkDetections | None = None
+    """The height network's detections (a v2 model with a detection head; None without one)."""
     detections: list[Detection] = field(default_factory=list)
     tracks: list[Track] = field(default_factory=list)
     events: list = field(default_factory=list)

@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from core.config import Config
+from core.config import NETWORK_OBJECTS_KEYS, Config
 from core.errors import HeightpipeError
 
 MANIFEST_NAME = "manifest.json"
@@ -64,7 +64,13 @@ def config_fingerprint(config: Config) -> str:
     relevant["output"].pop("directory")
     # Object extraction's keys are hashed under "tracking", where they were before they got their
     # own [objects] section: archives processed before that are not redone for the move alone.
-    relevant["tracking"].update(dataclasses.asdict(config.objects))
+    objects = dataclasses.asdict(config.objects)
+    if config.objects.source == "blobs":
+        # The network-mode keys (and the source itself) came later and blobs mode reads none of them:
+        # archives processed before they existed are not redone for them.
+        for key in ("source", *NETWORK_OBJECTS_KEYS):
+            objects.pop(key)
+    relevant["tracking"].update(objects)
     model = Path(config.height.model or SHIPPED_MODEL)
     if model.is_file():
         stat = model.stat()

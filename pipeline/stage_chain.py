@@ -21,6 +21,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from core.config import Config
+from core.errors import ConfigError
 from core.packets import CameraInfo, Frame, FramePacket
 from core.stage import PrimedStage, Stage
 
@@ -79,6 +80,10 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
         A ground-contact (v2) model may decode with the assumed camera height of a camera with
         no height given (``heightpipe calibrate``, which needs only what stands above the
         ground); otherwise such a model without a camera is a ConfigError.
+
+    ``objects.source = "network"`` needs a model with a detection head (a ConfigError names the
+    model otherwise); a ``heights`` stand-in gives the objects only the network detections it
+    puts in ``packet.network_detections`` (none for the generator's true maps).
     """
     from stages.calibration import has_distortion, is_calibrated
     from stages.feature_matching import FeatureMatcher
@@ -90,8 +95,14 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
         from stages.ground_segmentation import GroundSegmenter
         from stages.height_inference import HeightEstimator
         from stages.heightnet_model import HeightNetModel
+        from stages.network_objects import check_classes, min_score
 
-        model = HeightNetModel(config.height.model, config.height.threads)
+        model = HeightNetModel(config.height.model, config.height.threads, min_score(config.objects))
+        if config.objects.source == "network":
+            if not model.info.detection:
+                raise ConfigError(f"objects.source = 'network' needs a height model with a detection head "
+                                  f"(a v2 export trained with detection = true); {model.path} has none")
+            check_classes(config.objects, model.info.detection_classes, str(model.path))
         height_stages = [("ground", GroundSegmenter(config.ground, model)),
                          ("height", HeightEstimator(model, camera, assumed_camera_ok))]
     else:

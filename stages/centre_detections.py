@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from core.packets import NetworkDetections
+
 
 @dataclass(frozen=True)
 class CentreDetections:
@@ -43,6 +45,20 @@ def centre_detections(centre_logit: np.ndarray, box: np.ndarray, stride: int,
     cy = (ys + 0.5) * stride + dy
     boxes = np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], 1).astype(np.float32)
     return CentreDetections(boxes.reshape(-1, 4), cls.astype(np.int64), scores.astype(np.float32))
+
+
+def in_frame(detections: CentreDetections, class_names: tuple[str, ...] | list[str],
+             input_size: tuple[int, int], frame_size: tuple[int, int]) -> NetworkDetections:
+    """The detections in source-frame pixels, with class names.
+
+    The frame was squashed to the input (``HeightNetModel.preprocess``: each axis resized on its
+    own, edge to edge), so each axis scales back by its own factor (``input_size`` and
+    ``frame_size`` are width, height). Boxes are not clipped: one running off the frame says so.
+    """
+    scale = np.array([frame_size[0] / input_size[0], frame_size[1] / input_size[1]] * 2, np.float32)
+    boxes = (np.asarray(detections.boxes, np.float32).reshape(-1, 4) * scale).astype(np.float32)
+    return NetworkDetections(boxes, tuple(str(class_names[int(c)]) for c in detections.classes),
+                             np.asarray(detections.scores, np.float32))
 
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -87,7 +87,8 @@ CONSTANTS = GeometryConstants()
 
 class GeometryMeasurer:
     """Adds each whole detection's ``GEOMETRY`` height (and a vehicle's ``BOX`` height), its class
-    in metres, its ground point, and a lower bound on its height where its foot is cut.
+    in metres (unless the network's detection head gave it one), its ground point, and a lower
+    bound on its height where its foot is cut.
 
     Does nothing unless ``packet.camera`` has a pose (source "calibration" or "self").
     Points are undistorted here when the camera still has distortion (no Undistorter ran).
@@ -133,9 +134,11 @@ class GeometryMeasurer:
         for i, detection in enumerate(detections):
             if foot_ok[i] and np.all(np.isfinite(ground[i])):
                 detection.ground_xy_m = (float(ground[i, 0]), float(ground[i, 1]))
-            if whole[i] and np.isfinite(heights[i]) and np.isfinite(widths[i]) and heights[i] > 0:
+            if (whole[i] and np.isfinite(heights[i]) and np.isfinite(widths[i]) and heights[i] > 0
+                    and detection.cls_source != "network"):
                 # The network's height classed people it reads at half their height as "other";
-                # the calibrated camera measures both height and width in metres.
+                # the calibrated camera measures both height and width in metres. A class from the
+                # network's detection head is the network's to decide: it saw the object.
                 detection.classify(metric_class(float(heights[i]), float(widths[i])), "geometry")
             height = heights[i]
             if (not foot_ok[i] and np.isfinite(height) and 0.0 < height < camera.height_m

@@ -15,9 +15,10 @@ class HeightEstimator:
 
     A v1 network's heights need only the camera height; a v2 network's ground-contact offsets
     need the whole camera (``stages/contact_heights.py``), and the packet then says which one
-    was used (``packet.height_camera``). ``camera`` (the run's) lets a v2 model without any
-    camera fail when the stage is built, not at the first frame; ``assumed_camera_ok`` lets it
-    decode with an assumed camera height (``heightpipe calibrate``).
+    was used (``packet.height_camera``). A network with a detection head also hands on its
+    detections (``packet.network_detections``, frame pixels). ``camera`` (the run's) lets a v2
+    model without any camera fail when the stage is built, not at the first frame;
+    ``assumed_camera_ok`` lets it decode with an assumed camera height (``heightpipe calibrate``).
     """
 
     def __init__(self, model: HeightNetModel, camera: CameraInfo | None = None,
@@ -38,6 +39,7 @@ class HeightEstimator:
             height = height.copy()
             height[packet.ground_mask] = 0.0
         packet.height_map = height
+        packet.network_detections = output.detections
         return packet
 
     def close(self) -> None:

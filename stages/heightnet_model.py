@@ -9,7 +9,9 @@ Two generations of network: v1 (``heightpipe.output_units`` "metres" or
 "camera_height_fraction") outputs ``height``; v2 ("ground_contact_offsets",
 heightnet/contact_export.py) outputs ``offsets`` and ``camera`` instead, which become metres only
 with a camera (``stages/contact_heights.py``). Outputs are read by name and any other output is
-left alone, so a network that gains heads (a detector's ``centre_logit``, ``box``) still loads.
+left alone, so a network that gains heads still loads. A v2 network whose metadata
+(``heightpipe.outputs``) lists a detection head (``centre_logit`` with its classes and stride, and
+``box``) also gives its detections, decoded here (``stages/centre_detections.py``) in frame pixels.
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ import cv2
 import numpy as np
 
 from core.errors import ModelError
-from core.packets import CameraInfo, Frame
+from core.packets import CameraInfo, Frame, NetworkDetections
+from stages.centre_detections import centre_detections, in_frame
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
 SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
@@ -32,6 +35,23 @@ CONTACT_UNITS = "ground_contact_offsets"
 OUTPUT_UNITS = ("metres", "camera_height_fraction", CONTACT_UNITS)
 CAMERA_HEAD_SIZE = 6
 """v2's ``camera`` output: pitch, roll, log focal length in image heights, their log-variances."""
+BOX_SIZE = 4
+"""The detection head's ``box`` output: centre dx, dy from the cell centre, width, height."""
+
+
+@dataclass(frozen=True)
+class HeightNetModelConstants:
+    """Fixed numbers of reading the network (the rule is in docs/design.md, Configuration)."""
+
+    # Peaks decoded from the detection head per frame at most, the strongest first: CenterNet's
+    # 100 (Zhou et al. 2019), more than a street camera's view holds.
+    max_detections: int = 100
+    # Weakest peak decoded where the caller names no floor (``objects`` passes its lowest
+    # threshold): weaker peaks of a trained head are background.
+    detection_min_score: float = 0.1
+
+
+CONSTANTS = HeightNetModelConstants()
 
 
 @dataclass
@@ -45,11 +65,20 @@ class ModelInfo:
     output_units: str
     architecture: str
     color_order: str = "RGB"
+    detection_classes: tuple[str, ...] = ()
+    """The detection head's classes, in the order of ``centre_logit``'s channels (() = no head)."""
+    detection_stride: int = 0
+    """Input pixels per cell of the detection head's outputs."""
 
     @property
     def contact(self) -> bool:
         """A HeightNet v2 network: ground-contact offsets and camera heads, no height output."""
         return self.output_units == CONTACT_UNITS
+
+    @property
+    def detection(self) -> bool:
+        """The network has a detection head (v2 metadata lists ``centre_logit``)."""
+        return bool(self.detection_classes)
 
 
 @dataclass
@@ -64,6 +93,9 @@ class ModelOutput:
     """v2: input H x W x 2 (du, dv) to each pixel's ground-contact point, input pixels."""
     camera: np.ndarray | None = None
     """v2: the camera heads' 6 numbers (``CAMERA_HEAD_SIZE``)."""
+    detections: NetworkDetections | None = None
+    """v2 with a detection head: its peaks at or above the model's ``detection_min_score``, in
+    frame pixels (None without a head)."""
 
 
 def _read_info(path: Path, meta: dict[str, str]) -> ModelInfo:
@@ -84,11 +116,42 @@ def _read_info(path: Path, meta: dict[str, str]) -> ModelInfo:
         raise ModelError(f"{path} has malformed heightpipe metadata: {exc}") from None
     if info.output_units not in OUTPUT_UNITS:
         raise ModelError(f"{path}: unknown output units {info.output_units!r}")
+    if info.contact:
+        info.detection_classes, info.detection_stride = _read_detection_head(path, meta)
     return info
 
 
+def _read_detection_head(path: Path, meta: dict[str, str]) -> tuple[tuple[str, ...], int]:
+    """Classes and stride of a v2 model's detection head from ``heightpipe.outputs`` ((), 0: none)."""
+    try:
+        outputs = json.loads(meta.get("heightpipe.outputs", "{}"))
+        centre = outputs.get("centre_logit")
+        if centre is None:
+            return (), 0
+        classes, stride = tuple(str(c) for c in centre["classes"]), int(centre["stride"])
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:
+        raise ModelError(f"{path} has malformed heightpipe.outputs metadata: {exc!r}") from None
+    if not classes or stride <= 0:
+        raise ModelError(f"{path}: heightpipe.outputs centre_logit needs classes and a positive stride")
+    return classes, stride
+
+
 class HeightNetModel:
-    def __init__(self, model_path: str | Path = "", threads: int = 2):
+    """One ONNX HeightNet (v1 or v2) in an ONNX Runtime session.
+
+    Parameters
+    ----------
+    model_path : str or Path
+        "" = the shipped model, "int8" = its INT8 version, else an exported file.
+    threads : int
+        ONNX Runtime intra-op threads.
+    detection_min_score : float
+        A detection head's peaks weaker than this are not decoded (object extraction passes its
+        lowest threshold, ``stages.network_objects.min_score``).
+    """
+
+    def __init__(self, model_path: str | Path = "", threads: int = 2,
+                 detection_min_score: float = CONSTANTS.detection_min_score):
         import onnxruntime as ort
 
         path = SHIPPED_INT8_MODEL if str(model_path) == "int8" else Path(model_path) if model_path else SHIPPED_MODEL
@@ -104,6 +167,7 @@ class HeightNetModel:
             first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise ModelError(f"{path} is not a loadable ONNX model: {first_line[:200]}") from None
         self.path = path
+        self.detection_min_score = detection_min_score
         self.info = _read_info(path, self.session.get_modelmeta().custom_metadata_map)
         self._check_signature()
         self._mean = np.array(self.info.mean, np.float32) * 255.0
@@ -127,6 +191,10 @@ class HeightNetModel:
                                 "camera": [1, CAMERA_HEAD_SIZE]}
         else:
             expected_outputs = {"height": [1, 1, h, w], "ground_logit": [1, 1, h, w]}
+        if self.info.detection:
+            cells = [h // self.info.detection_stride, w // self.info.detection_stride]
+            expected_outputs["centre_logit"] = [1, len(self.info.detection_classes), *cells]
+            expected_outputs["box"] = [1, BOX_SIZE, *cells]
         for name, shape in expected_outputs.items():
             if name not in outputs:
                 raise ModelError(f"{self.path}: missing output {name!r} (has {sorted(outputs)})")
@@ -159,9 +227,18 @@ class HeightNetModel:
         probability = (1.0 / (1.0 + np.exp(-np.clip(logit_full, -30, 30)))).astype(np.float32)
         if self.info.contact:
             return ModelOutput(None, probability, offsets=named["offsets"][0].transpose(1, 2, 0),
-                               camera=named["camera"][0])
+                               camera=named["camera"][0], detections=self._detections(named, (w, h)))
         height_full = cv2.resize(named["height"][0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
         return ModelOutput(np.maximum(height_full, 0.0), probability)
+
+    def _detections(self, named: dict[str, np.ndarray], frame_size: tuple[int, int]) -> NetworkDetections | None:
+        """The detection head's peaks in frame pixels (None without a head)."""
+        if not self.info.detection:
+            return None
+        found = centre_detections(named["centre_logit"][0], named["box"][0], self.info.detection_stride,
+                                  self.detection_min_score, CONSTANTS.max_detections)
+        return in_frame(found, self.info.detection_classes,
+                        (self.info.input_width, self.info.input_height), frame_size)
 
     def to_metres(self, height: np.ndarray, camera: CameraInfo) -> np.ndarray:
         """v1 model units to metres: scale-free outputs are multiplied by the camera height

@@ -12,6 +12,9 @@ on their own within the last 15 frames.
 A piece's height is not measured (no channel: the blob's top, foot and outline may belong to the
 other object), so the pieces move the tracks' boxes only, and their heights hold as through an
 occlusion.
+
+A box of the network's detection head (``cls_source`` "network") is never cut: the network drew
+one box per object, and a vehicle's box holding people in front of it is not a merged blob.
 """
 
 from __future__ import annotations
@@ -69,7 +72,8 @@ def split_by_predictions(detections: list[Detection], predictions: list[tuple[fl
     for detection in detections:
         inside = np.flatnonzero(_predictions_inside(detection.box, boxes))
         pieces = None
-        if (len(inside) >= 2 and detection.mask is not None and _side_by_side(boxes[inside])
+        if (len(inside) >= 2 and detection.mask is not None and detection.cls_source != "network"
+                and _side_by_side(boxes[inside])
                 and any(classes[i] not in CONSTANTS.fragment_classes for i in inside)):
             pieces = _cut(detection, boxes[inside], [classes[i] for i in inside])
         result.extend(pieces or [detection])

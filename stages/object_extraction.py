@@ -28,9 +28,16 @@ included): KNN found 856 of 4020 boxes with 59 clutter detections at ~4 ms/frame
 169 clutter (its first ~15 frames are all foreground); MOG2 603 with 6 (its sparse masks fail
 the foreground-share test). KNN is the default.
 
+With ``objects.source = "network"`` the height network's detection head finds the objects instead
+(``network_objects``): the background model still runs, as a cue that confirms weak boxes, and
+everything above that exists to make blobs into objects (the foreground-share test, the splits,
+crown and soles, classes from shape, denoising) is not run (docs/design.md, "retired in network
+mode"), unless ``keep_motion_blobs`` adds the blobs no box covers.
+
 The stage is this module (the per-frame flow and its state); the background model's pieces are in
-``background_model``, the blob splitters in ``blob_splitting`` and the per-object measurements
-(class, crown and soles, robust top) in ``object_measurements``.
+``background_model``, the blob splitters in ``blob_splitting``, the per-object measurements
+(class, crown and soles, robust top) in ``object_measurements`` and the network's boxes in
+``network_objects``.
 """
 
 from __future__ import annotations
@@ -45,8 +52,9 @@ from core.packets import NETWORK, Detection, FramePacket, Measurement
 from stages.association import Region, points_in_regions
 from stages.background_model import FOREGROUND_VALUE, drop_small_pieces, make_background_subtractor
 from stages.blob_splitting import split_by_foreground, split_by_heads, split_by_height_peaks
+from stages.network_objects import check_config, network_objects, uncovered_blobs
 from stages.object_measurements import (coarse_class, fit_box_to_ends, foot_above_ground, foreground_ends,
-                                        moving_beyond_ends, robust_top, seen_outline)
+                                        height_noise, moving_beyond_ends, robust_top, seen_outline)
 
 
 @dataclass(frozen=True)
@@ -103,7 +111,9 @@ class ForegroundMasks:
 
 
 class ObjectExtractor:
-    """Fills ``packet.foreground`` and ``packet.detections``.
+    """Fills ``packet.foreground`` and ``packet.detections``: from blobs, or with ``source =
+    "network"`` from ``packet.network_detections`` (``stages.network_objects``), the background
+    model then only a cue.
 
     Parameters
     ----------
@@ -115,7 +125,11 @@ class ObjectExtractor:
     """
 
     def __init__(self, config: ObjectsConfig, ground: GroundConfig):
+        check_config(config)
         self.config = config
+        self.network = config.source == "network"
+        # Blobs are found in blobs mode, and in network mode only to keep those no box covers.
+        self._blobs = not self.network or config.keep_motion_blobs
         self._reference: np.ndarray | None = None
         self.height_threshold_m = ground.height_threshold_m
         self.subtractor = make_background_subtractor(config.background)
@@ -125,7 +139,8 @@ class ObjectExtractor:
         self.kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self.grow_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * CONSTANTS.grow_radius + 1,) * 2)
         self._prev_height_map: np.ndarray | None = None
-        self._denoise: bool | None = None
+        # Denoising exists to keep specks from joining blobs: without blobs it stays off.
+        self._denoise: bool | None = None if self._blobs else False
         self._ends_subtractor = None
         self._edge: tuple[object, tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None
         """(the image_valid it was made from, frame size, edge masks): see ``_image_edge``."""
@@ -136,28 +151,61 @@ class ObjectExtractor:
         scale = self._work_scale(src_w)
         work_size = (max(1, round(src_w * scale)), max(1, round(src_h * scale)))
         small = image if scale == 1.0 else cv2.resize(image, work_size, interpolation=cv2.INTER_AREA)
+        masks = self._foreground(packet, small, scale)
+        if self.network:
+            detections = self._network_detections(packet, masks, scale, work_size)
+        else:
+            detections = self._blob_detections(packet, masks, scale, work_size)
+            if detections is None:
+                packet.detections = []
+                return packet
+        if packet.height_map is not None:
+            self._add_consistency_noise(detections, packet)
+        packet.detections = detections
+        self._prev_height_map = packet.height_map
+        return packet
 
-        masks = None
-        if self.subtractor is not None:
-            small = self._compensate_exposure(small)
-            if self._denoise is None:
-                self._set_denoise(self._noisy([small]))
-            raw = self.subtractor.apply(cv2.medianBlur(small, 3) if self._denoise else small)
-            # Sensor noise is per source pixel: downscaling averages it away, at source size it specks.
-            moving = drop_small_pieces(raw == FOREGROUND_VALUE, self.config.min_foreground_piece_px * scale * scale)
-            changed = raw > 0
-            packet.foreground = _resize_mask(moving, (src_w, src_h))
-            ends_changed, ends_moving = changed, moving
-            if self._ends_subtractor is not None:
-                unfiltered = self._ends_subtractor.apply(small)
-                ends_changed, ends_moving = unfiltered > 0, unfiltered == FOREGROUND_VALUE
-            grown = cv2.dilate(moving.astype(np.uint8), self.grow_kernel).astype(bool)
-            masks = ForegroundMasks(moving, changed, grown, ends_changed, ends_moving)
+    def _foreground(self, packet: FramePacket, small: np.ndarray, scale: float) -> ForegroundMasks | None:
+        """The background model's masks at work size (None without one); fills ``packet.foreground``."""
+        if self.subtractor is None:
+            return None
+        src_h, src_w = packet.frame.image.shape[:2]
+        small = self._compensate_exposure(small)
+        if self._denoise is None:
+            self._set_denoise(self._noisy([small]))
+        raw = self.subtractor.apply(cv2.medianBlur(small, 3) if self._denoise else small)
+        # Sensor noise is per source pixel: downscaling averages it away, at source size it specks.
+        moving = drop_small_pieces(raw == FOREGROUND_VALUE, self.config.min_foreground_piece_px * scale * scale)
+        changed = raw > 0
+        packet.foreground = _resize_mask(moving, (src_w, src_h))
+        ends_changed, ends_moving = changed, moving
+        if self._ends_subtractor is not None:
+            unfiltered = self._ends_subtractor.apply(small)
+            ends_changed, ends_moving = unfiltered > 0, unfiltered == FOREGROUND_VALUE
+        grown = cv2.dilate(moving.astype(np.uint8), self.grow_kernel).astype(bool)
+        return ForegroundMasks(moving, changed, grown, ends_changed, ends_moving)
 
+    def _network_detections(self, packet: FramePacket, masks: ForegroundMasks | None, scale: float,
+                            work_size: tuple[int, int]) -> list[Detection]:
+        """``objects.source = "network"``: the network's boxes (``stages.network_objects``), and
+        with ``keep_motion_blobs`` the blobs that no kept box covers."""
+        src_h, src_w = packet.frame.image.shape[:2]
+        edge, _ = self._image_edge(packet.image_valid, (src_w, src_h), scale, work_size)
+        detections = network_objects(packet.network_detections, self.config, self.height_threshold_m,
+                                     packet.height_map, packet.ground_mask, packet.foreground, edge)
+        if self.config.keep_motion_blobs:
+            blobs = self._blob_detections(packet, masks, scale, work_size) or []
+            detections += uncovered_blobs(blobs, detections)
+        return detections
+
+    def _blob_detections(self, packet: FramePacket, masks: ForegroundMasks | None, scale: float,
+                         work_size: tuple[int, int]) -> list[Detection] | None:
+        """``objects.source = "blobs"``: moving, above-ground blobs, split and measured (None when
+        there is neither a background model nor a height map)."""
+        src_h, src_w = packet.frame.image.shape[:2]
         above, work_heights = self._above_ground(packet, work_size)
         if masks is None and above is None:
-            packet.detections = []
-            return packet
+            return None
         if masks is None:
             candidate = above
         elif above is None:
@@ -172,13 +220,7 @@ class ObjectExtractor:
         candidate = candidate.astype(np.uint8)
         candidate = cv2.morphologyEx(candidate, cv2.MORPH_CLOSE, self.kernel)
         edge, work_edge = self._image_edge(packet.image_valid, (src_w, src_h), scale, work_size)
-        detections = self._blobs_to_detections(candidate, masks, work_heights, packet.height_map, scale,
-                                               edge, work_edge)
-        if packet.height_map is not None:
-            self._add_consistency_noise(detections, packet)
-        packet.detections = detections
-        self._prev_height_map = packet.height_map
-        return packet
+        return self._blobs_to_detections(candidate, masks, work_heights, packet.height_map, scale, edge, work_edge)
 
     def prime(self, images: list[np.ndarray]) -> list[np.ndarray]:
         """Seed the background model from look-ahead frames (``prime_background``); pass them on."""
@@ -205,7 +247,8 @@ class ObjectExtractor:
         small = [cv2.resize(image, size, interpolation=cv2.INTER_AREA) if scale != 1.0 else image
                  for image in images if image.shape[:2] == images[0].shape[:2]]
         background = np.median(np.stack(small), axis=0).astype(np.uint8)
-        self._set_denoise(self._noisy(small))
+        if self._blobs:
+            self._set_denoise(self._noisy(small))
         if self._ends_subtractor is not None:
             for _ in range(CONSTANTS.prime_repeats):
                 self._ends_subtractor.apply(background)
@@ -440,11 +483,7 @@ class ObjectExtractor:
 
     def _height_noise(self, height_m: float, box_h_px: float, touches_border: bool) -> float:
         """Base noise, plus the size of one pixel at the object, times 3 when cut by the border."""
-        metres_per_px = height_m / max(box_h_px, 1.0)
-        noise = float(np.hypot(self.config.height_measurement_noise_m, 2.0 * metres_per_px))
-        if touches_border:
-            noise *= 3.0              # the top or the foot may be outside the image
-        return noise
+        return height_noise(self.config.height_measurement_noise_m, height_m, box_h_px, touches_border)
 
 
 

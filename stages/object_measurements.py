@@ -1,7 +1,8 @@
 """Measuring one detected object: its class, its ends (crown and soles), its robust top height.
 
 Pure functions on masks and height maps, used by ``ObjectExtractor`` for every piece a blob
-becomes.
+becomes; the robust top, the hidden-foot test and the noise also for every network box
+(``stages.network_objects``).
 """
 
 from __future__ import annotations
@@ -172,6 +173,16 @@ def foot_above_ground(heights: np.ndarray, mask: np.ndarray, rows: np.ndarray, t
     values = heights[band]
     values = values[np.isfinite(values)]
     return bool(values.size and np.median(values) > CONSTANTS.foot_max_share * top_m)
+
+
+def height_noise(base_m: float, height_m: float, box_h_px: float, touches_border: bool) -> float:
+    """One frame's height noise: the base noise, plus the size of one pixel at the object, times 3
+    when the object touches the image's border (its top or foot may be outside the image)."""
+    metres_per_px = height_m / max(box_h_px, 1.0)
+    noise = float(np.hypot(base_m, 2.0 * metres_per_px))
+    if touches_border:
+        noise *= 3.0
+    return noise
 
 
 def robust_top(heights: np.ndarray, mask: np.ndarray, percentile: float) -> float:

@@ -9,7 +9,8 @@ One frame, in order:
    (and its last observation), never its height.
 2. Predict every track (constant-velocity box, near-constant height). A detection holding the
    predicted boxes of two or more tracks seen a frame ago (walkers passing close: one blob) is
-   cut into one piece per track (``merged_blobs``); the pieces move boxes, not heights.
+   cut into one piece per track (``merged_blobs``; never a box of the network's detection head);
+   the pieces move boxes, not heights.
 3. Associate (Hungarian) on a cost mixing IoU, matched-point votes, the Mahalanobis distance
    of the box, the height difference and how much the step from the track's last observed box
    goes against its motion (OC-SORT's momentum); pairs outside the motion gate, with neither

@@ -145,14 +145,18 @@ def default_sigint() -> None:
 
 
 def make_tiny_contact_model(path: Path, offsets: np.ndarray, camera: np.ndarray,
-                            camera_slope: np.ndarray | None = None, extra_outputs: bool = True) -> Path:
+                            camera_slope: np.ndarray | None = None, extra_outputs: bool = True,
+                            detection: tuple[list[str], np.ndarray, np.ndarray] | None = None) -> Path:
     """A HeightNet v2-shaped ONNX model (ground-contact offsets) with outputs chosen by the test.
 
     ``offsets`` (H x W x 2, input pixels) come out as they are, whatever the image; the camera
     heads give ``camera + camera_slope * mean(normalised image)`` (6 numbers), so frames of
     different brightness read differently; the ground is dark pixels, as the v1 tiny model's.
-    ``extra_outputs`` adds a detector's ``centre_logit`` and ``box``, which the run time must
-    ignore. Not a trained network: it proves the wiring without torch.
+    ``extra_outputs`` adds a detector's ``centre_logit`` and ``box`` that the metadata does not
+    declare, which the run time must ignore. ``detection`` = (classes, centre logits C x h x w,
+    boxes 4 x h x w) makes a declared detection head instead (``heightpipe.outputs``, stride =
+    input height / h) whose outputs are these constants. Not a trained network: it proves the
+    wiring without torch.
     """
     import onnx
     from onnx import TensorProto, helper
@@ -176,7 +180,15 @@ def make_tiny_contact_model(path: Path, offsets: np.ndarray, camera: np.ndarray,
     outputs = [helper.make_tensor_value_info("offsets", TensorProto.FLOAT, [1, 2, height, width]),
                helper.make_tensor_value_info("ground_logit", TensorProto.FLOAT, [1, 1, height, width]),
                helper.make_tensor_value_info("camera", TensorProto.FLOAT, [1, 6])]
-    if extra_outputs:
+    if detection is not None:
+        classes, centre, boxes = detection
+        constants["centre_value"] = np.asarray(centre, np.float32)[None]
+        constants["box_value"] = np.asarray(boxes, np.float32)[None]
+        nodes += [helper.make_node("Identity", ["centre_value"], ["centre_logit"]),
+                  helper.make_node("Identity", ["box_value"], ["box"])]
+        outputs += [helper.make_tensor_value_info(name, TensorProto.FLOAT, list(constants[f"{value}_value"].shape))
+                    for name, value in (("centre_logit", "centre"), ("box", "box"))]
+    elif extra_outputs:
         nodes += [helper.make_node("Identity", ["centre_value"], ["centre_logit"]),
                   helper.make_node("Identity", ["box_value"], ["box"])]
         outputs = [helper.make_tensor_value_info("centre_logit", TensorProto.FLOAT, [1, 1, height, width]),
@@ -194,6 +206,10 @@ def make_tiny_contact_model(path: Path, offsets: np.ndarray, camera: np.ndarray,
             "heightpipe.input_height": str(height), "heightpipe.mean": json.dumps([0.5, 0.5, 0.5]),
             "heightpipe.std": json.dumps([0.5, 0.5, 0.5]), "heightpipe.color_order": "RGB",
             "heightpipe.output_units": "ground_contact_offsets", "heightpipe.architecture": "tiny-test"}
+    if detection is not None:
+        meta["heightpipe.outputs"] = json.dumps({"centre_logit": {"classes": list(detection[0]),
+                                                                  "stride": height // np.shape(detection[1])[1]},
+                                                 "box": "centre dx, dy, width, height; input pixels"})
     helper.set_model_props(model, meta)
     onnx.save(model, str(path))
     return path

@@ -323,6 +323,17 @@ def test_what_a_rerun_redoes(tmp_path):
     threads_only = Config()
     threads_only.height.threads, threads_only.output.progress = 1, False
     assert reason("/a.mp4", fp=config_fingerprint(threads_only)) is None
+    # Network-mode keys are not read in blobs mode (archives made before they existed stay done) ...
+    blobs = Config()
+    blobs.objects.score_person, blobs.objects.keep_motion_blobs = 0.9, True
+    assert reason("/a.mp4", fp=config_fingerprint(blobs)) is None
+    # ... and in network mode they count.
+    network = Config()
+    network.objects.source = "network"
+    assert reason("/a.mp4", fp=config_fingerprint(network)) == "config changed"
+    stricter = Config()
+    stricter.objects.source, stricter.objects.score_person = "network", 0.9
+    assert config_fingerprint(stricter) != config_fingerprint(network)
     assert reason("/b.mp4") is None and reason("/b.mp4", retry_failed=True) == "retry failed"
     (tmp_path / "videos" / "a-1.mcap").unlink()
     assert reason("/a.mp4").startswith("output missing")

@@ -266,3 +266,46 @@ def test_a_v2_model_with_the_camera_height_says_the_heads_gave_the_rest(tmp_path
     assert result.returncode == 0, result.stderr
     camera_line = next(line for line in result.stderr.splitlines() if line.startswith("  camera:"))
     assert "camera heads: pitch 22.9° ±7.8°" in camera_line and "mean of 5 frames" in camera_line
+
+
+@pytest.fixture
+def detector_model(tmp_path):
+    """The v2 model above with a declared detection head that always finds a person (score 0.95)
+    and a vehicle (0.88) at fixed places, and a cyclist too weak for any threshold."""
+    import numpy as np
+
+    from media import make_tiny_contact_model
+
+    offsets = np.zeros((48, 64, 2), np.float32)
+    offsets[..., 1] = 3.0
+    centre = np.full((3, 12, 16), -10.0, np.float32)
+    box = np.zeros((4, 12, 16), np.float32)
+    for cls, (row, col), logit, size in ((0, (6, 8), 3.0, (8, 16)), (2, (3, 3), 2.0, (12, 8)),
+                                         (1, (9, 12), -3.0, (8, 12))):
+        centre[cls, row, col] = logit
+        box[2:, row, col] = size
+    return make_tiny_contact_model(tmp_path / "det.onnx", offsets, [0.4, 0.0, 0.2, -4.0, -4.0, -4.0],
+                                   detection=(["person", "cyclist", "vehicle"], centre, box))
+
+
+def test_network_objects_run_end_to_end(tmp_path, box_video, detector_model):
+    """`objects.source = network` with a model that has a detection head: runs, and its tracks are
+    the network's objects (an untrained model: structure, not accuracy)."""
+    result = heightpipe("run", box_video, "--out", tmp_path / "net", "--no-progress", "--rerun", "off",
+                        "--camera-height", "5", "--max-frames", "6", "--set", f'height.model="{detector_model}"',
+                        "--set", "objects.source=network")
+    assert result.returncode == 0, result.stderr
+    with open(tmp_path / "net.tracks.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        rows = list(reader)
+    assert reader.fieldnames == CSV_HEADER
+    # Two objects that never move, found in every frame: confirmed tracks of the network's classes
+    # (the moving white box has no network box: it is no object in network mode).
+    assert {(row["track_id"], row["class"]) for row in rows} == {("1", "person"), ("2", "vehicle")}
+    assert len(rows) == 2 * 5          # confirmed from the second frame on
+
+
+def test_network_objects_need_a_model_with_a_detection_head(box_video, model_flag):
+    result = heightpipe("run", box_video, "--rerun", "off", "--max-frames", "2", "--set", "objects.source=network",
+                        *model_flag)
+    assert_clean_error(result, "objects.source = 'network' needs a height model with a detection head")

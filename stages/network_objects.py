@@ -1,0 +1,194 @@
+"""Objects from the height network's detection head (``objects.source = "network"``).
+
+The network's boxes are the objects: each box scoring at least its class's threshold
+(``objects.score_<class>``) becomes a ``Detection`` of the network's class, whether it moves or
+not, so a person standing still (whom a primed background model holds, and blobs never find) is
+found. Motion is a cue, never the gate: a weaker box (down to ``objects.score_motion``) is kept
+only while it moves, i.e. at least ``objects.moving_share`` of its pixels above the ground are
+foreground; a motion blob that no network box covers is no object unless
+``objects.keep_motion_blobs`` says so (``uncovered_blobs``).
+
+Each box is measured like a blob (``stages.object_measurements``): its own pixels are the box's
+pixels above the ground, its single-frame height the robust top of the height map on them. Scenery
+seen past the object inside the box does not raise it when the camera is above the object: a ray
+through the box passes the object's vertical no higher than its top (the box's rows run from
+the crown down) and descends from there, so what it meets behind stands lower. The geometry's
+foot and top are the box's bottom and top centres (the network's sub-pixel box, not the pixels
+it covers). Heights outside ``objects.min_object_height_m`` ..
+``max_object_height_m`` are no measurement (the height map failed on the object; it stays an
+object); a box whose top or bottom centre reaches the image's edge is cut there, as a blob is.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.config import NETWORK_OBJECTS_KEYS, ObjectsConfig
+from core.errors import ConfigError
+from core.packets import NETWORK, Detection, Measurement, NetworkDetections
+from stages.object_measurements import foot_above_ground, height_noise, robust_top
+
+SOURCES = ("blobs", "network")
+CLASS_PREFIX = "score_"
+"""A class's threshold is the ``[objects]`` key ``score_<class>``."""
+
+
+@dataclass(frozen=True)
+class NetworkObjectConstants:
+    """Fixed numbers of turning network boxes into detections (the rule is in docs/design.md,
+    Configuration)."""
+
+    # A motion blob is one of the network's objects when at least this share of its pixels lies in
+    # the kept boxes: a box drawn round a walker covers most of the walker's blob, and a blob of two
+    # walkers is covered by their two boxes together.
+    blob_covered_share: float = 0.5
+
+
+CONSTANTS = NetworkObjectConstants()
+
+
+def class_thresholds(config: ObjectsConfig) -> dict[str, float]:
+    """Each class's score threshold from the ``score_<class>`` keys of ``[objects]``."""
+    return {key[len(CLASS_PREFIX):]: getattr(config, key) for key in NETWORK_OBJECTS_KEYS
+            if key.startswith(CLASS_PREFIX) and key != "score_motion"}
+
+
+def min_score(config: ObjectsConfig) -> float:
+    """The weakest score any box is kept at: the network need not decode weaker peaks."""
+    return min(config.score_motion, *class_thresholds(config).values())
+
+
+def check_config(config: ObjectsConfig) -> None:
+    """ConfigError for a source or a score that cannot work."""
+    if config.source not in SOURCES:
+        raise ConfigError(f"objects.source must be one of {', '.join(SOURCES)}, got {config.source!r}")
+    for key in [*(CLASS_PREFIX + cls for cls in class_thresholds(config)), "score_motion", "moving_share"]:
+        if not 0.0 <= getattr(config, key) <= 1.0:
+            raise ConfigError(f"objects.{key} must be between 0 and 1, got {getattr(config, key)}")
+
+
+def check_classes(config: ObjectsConfig, classes: tuple[str, ...] | list[str], model: str) -> None:
+    """ConfigError when the model detects a class that has no threshold key."""
+    missing = [cls for cls in classes if cls not in class_thresholds(config)]
+    if missing:
+        raise ConfigError(f"{model} detects {', '.join(missing)}, for which [objects] has no "
+                          f"{', '.join(CLASS_PREFIX + cls for cls in missing)} threshold")
+
+
+def network_objects(found: NetworkDetections | None, config: ObjectsConfig, height_threshold_m: float,
+                    height_map: np.ndarray | None, ground_mask: np.ndarray | None,
+                    foreground: np.ndarray | None, edge: np.ndarray) -> list[Detection]:
+    """The network's boxes that are objects this frame, measured.
+
+    Parameters
+    ----------
+    found : NetworkDetections or None
+        The network's detections in frame pixels (None: the model has no detection head).
+    config : ObjectsConfig
+        Thresholds (``score_*``, ``moving_share``) and the height measurement's keys.
+    height_threshold_m : float
+        Pixels lower than this are ground (``[ground]``).
+    height_map, ground_mask, foreground : ndarray or None
+        The frame's maps at source size (None where the run has none).
+    edge : ndarray
+        Source-size bool: pixels where the image may end (frame border, undistortion's black).
+    """
+    if found is None or len(found) == 0:
+        return []
+    thresholds = class_thresholds(config)
+    frame_h, frame_w = edge.shape
+    detections = []
+    for box, cls, score in zip(found.boxes, found.classes, found.scores):
+        limit = thresholds.get(cls)
+        if limit is None or score < min(limit, config.score_motion):
+            continue
+        clipped = np.clip(np.asarray(box, float), 0.0, [frame_w, frame_h, frame_w, frame_h])
+        x0, y0 = int(np.floor(clipped[0])), int(np.floor(clipped[1]))
+        x1, y1 = int(np.ceil(clipped[2])), int(np.ceil(clipped[3]))
+        if x1 <= x0 or y1 <= y0:
+            continue
+        own = _own_pixels((x0, y0, x1, y1), height_map, ground_mask, height_threshold_m)
+        if score < limit and not _moving(foreground, (x0, y0, x1, y1), own, config.moving_share):
+            continue
+        detection = _measure_box(clipped, (x0, y0, x1, y1), own, height_map, edge, config)
+        detection.score = float(score)
+        detection.classify(cls, "network")
+        detections.append(detection)
+    return detections
+
+
+def uncovered_blobs(blobs: list[Detection], boxes: list[Detection]) -> list[Detection]:
+    """The blob detections that the network's kept boxes do not cover (``blob_covered_share``)."""
+    kept = []
+    for blob in blobs:
+        x, y, w, h = (int(round(v)) for v in blob.box)
+        pixels = np.ones((h, w), bool) if blob.mask is None or blob.mask.shape != (h, w) else blob.mask
+        covered = np.zeros((h, w), bool)
+        for box in boxes:
+            bx, by, bw, bh = box.box
+            c0, r0 = max(int(np.floor(bx)) - x, 0), max(int(np.floor(by)) - y, 0)
+            c1, r1 = min(int(np.ceil(bx + bw)) - x, w), min(int(np.ceil(by + bh)) - y, h)
+            if c1 > c0 and r1 > r0:
+                covered[r0:r1, c0:c1] = True
+        if not pixels.any() or (covered & pixels).sum() < CONSTANTS.blob_covered_share * pixels.sum():
+            kept.append(blob)
+    return kept
+
+
+def _own_pixels(corners: tuple[int, int, int, int], height_map: np.ndarray | None,
+                ground_mask: np.ndarray | None, height_threshold_m: float) -> np.ndarray:
+    """Box-sized bool: the box's pixels above the ground (all of them without a height map)."""
+    x0, y0, x1, y1 = corners
+    if height_map is None:
+        return np.ones((y1 - y0, x1 - x0), bool)
+    own = np.nan_to_num(height_map[y0:y1, x0:x1], nan=0.0) > height_threshold_m
+    if ground_mask is not None:
+        own &= ~ground_mask[y0:y1, x0:x1]
+    return own
+
+
+def _moving(foreground: np.ndarray | None, corners: tuple[int, int, int, int], own: np.ndarray,
+            share: float) -> bool:
+    """Whether at least ``share`` of the object's own pixels (the whole box if it has none) move."""
+    if foreground is None:
+        return False
+    x0, y0, x1, y1 = corners
+    moving = foreground[y0:y1, x0:x1]
+    pixels = moving[own] if own.any() else moving
+    return bool(pixels.size and pixels.mean() >= share)
+
+
+def _measure_box(box: np.ndarray, corners: tuple[int, int, int, int], own: np.ndarray,
+                 height_map: np.ndarray | None, edge: np.ndarray, config: ObjectsConfig) -> Detection:
+    """The detection of one kept box: the pixels it covers, its ends, its cuts, its height."""
+    x0, y0, x1, y1 = corners
+    centre_x = float(box[0] + box[2]) / 2.0
+    at_edge = edge[y0:y1, x0:x1]
+    touches_border = bool(at_edge.any())
+    # The ends are the top and bottom centres: cut where the image may end there (a box at the
+    # frame's side touches it, but its top and foot are still in view).
+    column = min(max(int(centre_x), x0), x1 - 1) - x0
+    top_cut, foot_cut = bool(at_edge[0, column]), bool(at_edge[-1, column])
+    measured = {}
+    if height_map is not None:
+        heights = height_map[y0:y1, x0:x1]
+        height_m = robust_top(heights, own, config.height_percentile)
+        if config.min_object_height_m <= height_m <= config.max_object_height_m:
+            noise_m = height_noise(config.height_measurement_noise_m, height_m, float(y1 - y0), touches_border)
+            foot_cut = foot_cut or foot_above_ground(heights, own, np.flatnonzero(own.any(axis=1)), height_m)
+            if top_cut:
+                noise_m = float("inf")    # top cut off by the frame: a lower bound, not a height
+            measured[NETWORK] = Measurement(height_m, noise_m, source="objects")
+    return Detection(
+        box=(float(x0), float(y0), float(x1 - x0), float(y1 - y0)),
+        heights=measured,
+        foot_xy=(centre_x, float(box[3])),
+        top_xy=(centre_x, float(box[1])),
+        touches_border=touches_border,
+        foot_cut=foot_cut,
+        top_cut=top_cut,
+        mask=own,
+        outline=own,
+    )

@@ -1,0 +1,75 @@
+"""An exported HeightNet v2 detection head as the run time reads it (tiny, untrained network)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.config import CameraConfig, GroundConfig, ObjectsConfig, TrainV2Config
+from core.packets import Frame, FramePacket
+from stages.calibration import camera_for_run
+from stages.centre_detections import centre_detections, in_frame
+from stages.height_inference import HeightEstimator
+from stages.heightnet_model import HeightNetModel
+from stages.object_extraction import ObjectExtractor
+
+IN_W, IN_H = 64, 64
+
+
+@pytest.fixture(scope="module")
+def detector(tmp_path_factory):
+    """ContactNet(widths=(8, 8, 16, 16), detection=True) saved as a training state and exported, with
+    its centre bias raised so that an untrained head finds peaks."""
+    import torch
+
+    from heightnet.contact_export import export_contact
+    from heightnet.contact_model import ContactArchitecture, ContactNet
+    from heightnet.contact_train import save_state
+
+    torch.manual_seed(0)
+    net = ContactNet(ContactArchitecture(widths=(8, 8, 16, 16), detection=True))
+    with torch.no_grad():
+        net.detection_head.centre.bias.fill_(1.0)
+        net.detection_head.box.bias.copy_(torch.tensor([0.0, 0.0, 0.0, 0.5]))   # 16 x 26 px boxes
+    net.eval()
+    folder = tmp_path_factory.mktemp("det")
+    state = folder / "checkpoint.pt"
+    save_state(state, net, torch.optim.Adam(net.parameters()), step=1, images=2,
+               config=TrainV2Config(out=str(folder), input_width=IN_W, input_height=IN_H))
+    path = folder / "heightnet_v2.onnx"
+    export_contact(state, path)
+    return path, net
+
+
+def test_an_exported_head_gives_the_decoded_peaks_in_frame_pixels(detector):
+    import torch
+
+    path, net = detector
+    model = HeightNetModel(path, threads=1, detection_min_score=0.3)
+    assert model.info.detection_classes == ("person", "cyclist", "vehicle") and model.info.detection_stride == 4
+    image = np.random.default_rng(0).integers(0, 255, (96, 160, 3), dtype=np.uint8)
+    found = model.run(image).detections
+    assert len(found) > 0, "the test network must find something"
+    with torch.no_grad():
+        *_, centre, box = net(torch.from_numpy(model.preprocess(image)))
+    expected = in_frame(centre_detections(centre[0].numpy(), box[0].numpy(), 4, 0.3, 100),
+                        model.info.detection_classes, (IN_W, IN_H), (160, 96))
+    # The same peaks (those of equal score may come in either order).
+    assert len(found) == len(expected)
+    for box, cls, score in zip(found.boxes, found.classes, found.scores):
+        same = [i for i, c in enumerate(expected.classes)
+                if c == cls and np.abs(expected.boxes[i] - box).max() < 1e-2]
+        assert same and abs(expected.scores[same[0]] - score) < 1e-4
+
+
+def test_network_mode_makes_objects_of_an_exported_heads_boxes(detector):
+    path, _ = detector
+    model = HeightNetModel(path, threads=1, detection_min_score=0.3)
+    camera = camera_for_run(CameraConfig(height_m=5.0), 160, 96)
+    image = np.random.default_rng(1).integers(0, 255, (96, 160, 3), dtype=np.uint8)
+    packet = HeightEstimator(model, camera).process(FramePacket(Frame(0, 0.0, image), camera))
+    config = ObjectsConfig(source="network", score_person=0.3, score_cyclist=0.3, score_vehicle=0.3)
+    packet = ObjectExtractor(config, GroundConfig()).process(packet)
+    assert len(packet.detections) == len(packet.network_detections) > 0
+    assert {d.cls_source for d in packet.detections} == {"network"}
+    assert [d.cls for d in packet.detections] == list(packet.network_detections.classes)

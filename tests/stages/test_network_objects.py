@@ -1,0 +1,273 @@
+"""Objects from the network's detection head (``objects.source = "network"``), with fake network
+detections on drawn scenes: thresholds per class, motion as a cue, heights from the box's pixels."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from media import make_tiny_contact_model
+from core.config import CameraConfig, GroundConfig, ObjectsConfig
+from core.errors import ConfigError, ModelError
+from core.packets import NETWORK, CameraInfo, Detection, Frame, FramePacket, NetworkDetections
+from stages.calibration import camera_for_run, camera_from_pose, intrinsics_from_fov
+from stages.centre_detections import CentreDetections, in_frame
+from stages.geometry import GeometryMeasurer
+from stages.height_inference import HeightEstimator
+from stages.heightnet_model import HeightNetModel
+from stages.merged_blobs import split_by_predictions
+from stages.network_objects import check_classes, class_thresholds, min_score, network_objects
+from stages.object_extraction import ObjectExtractor
+
+WIDTH, HEIGHT = 320, 240
+NETWORK_MODE = ObjectsConfig(source="network", score_person=0.5, score_cyclist=0.6, score_vehicle=0.7,
+                             score_motion=0.2)
+STANDER = (40, 60, 20, 60, 1.70)
+"""x, y, w, h, height_m: a person standing still from the first frame on (in the primed background)."""
+
+
+def walker(frame: int) -> tuple[int, int, int, int, float]:
+    return (150 + 5 * frame, 80, 20, 60, 1.80)
+
+
+def _background() -> np.ndarray:
+    small = np.random.default_rng(0).integers(60, 120, (HEIGHT // 8, WIDTH // 8, 3), dtype=np.uint8)
+    return np.kron(small, np.ones((8, 8, 1), dtype=np.uint8))
+
+
+def scene(people: list[tuple[int, int, int, int, float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Image, height map (each person from height_m at the crown to 0.05 m at the soles), ground."""
+    image = _background().copy()
+    heights = np.zeros((HEIGHT, WIDTH), np.float32)
+    for x, y, w, h, height_m in people:
+        texture = np.random.default_rng(int(height_m * 100)).integers(0, 255, (h // 4 + 1, w // 4 + 1, 3))
+        image[y:y + h, x:x + w] = np.kron(texture, np.ones((4, 4, 1)))[:h, :w].astype(np.uint8)
+        heights[y:y + h, x:x + w] = np.linspace(height_m, 0.05, h, dtype=np.float32)[:, None]
+    return image, heights, heights < 0.1
+
+
+def found(*boxes: tuple[str, float, tuple[float, float, float, float]]) -> NetworkDetections:
+    """Network detections from (class, score, (x0, y0, x1, y1) in frame pixels)."""
+    return NetworkDetections(np.array([b for _, _, b in boxes], np.float32).reshape(-1, 4),
+                             tuple(cls for cls, _, _ in boxes), np.array([s for _, s, _ in boxes], np.float32))
+
+
+def box_of(person: tuple[int, int, int, int, float]) -> tuple[float, float, float, float]:
+    x, y, w, h, _ = person
+    return (float(x), float(y), float(x + w), float(y + h))
+
+
+def run(config: ObjectsConfig, last: NetworkDetections | None, frames: int = 8,
+        with_walker: bool = True) -> FramePacket:
+    """The stander and (optionally) a walker; the background primed as a run primes it (the median
+    of early frames holds the stander); ``last`` are the network's detections of the last frame."""
+    extractor = ObjectExtractor(config, GroundConfig())
+    people = [[STANDER] + ([walker(i)] if with_walker else []) for i in range(frames)]
+    # Priming frames seconds apart: the walker anywhere along the way, the stander always there.
+    extractor.prime_background([scene([STANDER, (80 + 20 * k, 80, 20, 60, 1.8)])[0] for k in range(10)])
+    for index, present in enumerate(people):
+        image, heights, ground = scene(present)
+        packet = FramePacket(Frame(index, index / 10, image), CameraInfo(WIDTH, HEIGHT), ground_mask=ground,
+                             height_map=heights, network_detections=last if index == frames - 1 else None)
+        packet = extractor.process(packet)
+    return packet
+
+
+# ------------------------------------------------------------------ boxes back in frame pixels
+
+@pytest.mark.parametrize("input_size, frame_size, box, expected", [
+    ((320, 240), (320, 240), (10, 20, 30, 60), (10, 20, 30, 60)),           # no resize
+    ((320, 240), (640, 480), (10, 20, 30, 60), (20, 40, 60, 120)),          # same aspect, x2
+    ((320, 240), (640, 360), (10, 20, 30, 60), (20, 30, 60, 90)),           # 16:9 squashed to 4:3
+    ((320, 192), (1920, 1080), (0, 0, 320, 192), (0, 0, 1920, 1080)),       # the whole input: the whole frame
+    ((64, 48), (160, 72), (27, 12, 35, 28), (67.5, 18, 87.5, 42)),
+])
+def test_boxes_map_back_to_frame_pixels_through_the_squash(input_size, frame_size, box, expected):
+    decoded = CentreDetections(np.array([box], np.float32), np.array([1]), np.array([0.7], np.float32))
+    mapped = in_frame(decoded, ("person", "cyclist", "vehicle"), input_size, frame_size)
+    assert mapped.boxes.tolist() == [pytest.approx(expected)]
+    assert mapped.classes == ("cyclist",) and mapped.scores.tolist() == [pytest.approx(0.7)]
+
+
+def tiny_detector(tmp_path, classes=("person", "cyclist", "vehicle")):
+    """A 64 x 48 v2 model whose head finds one person: a peak at cell (row 5, col 7), box (27, 12, 35, 28)."""
+    centre = np.full((len(classes), 12, 16), -10.0, np.float32)
+    centre[0, 5, 7] = 3.0
+    box = np.zeros((4, 12, 16), np.float32)
+    box[:, 5, 7] = (1.0, -2.0, 8.0, 16.0)        # centre (31, 20) in input pixels, 8 x 16
+    return make_tiny_contact_model(tmp_path / "det.onnx", np.zeros((48, 64, 2), np.float32), np.zeros(6),
+                                   detection=(list(classes), centre, box))
+
+
+def test_a_model_with_a_detection_head_hands_its_boxes_on_in_frame_pixels(tmp_path):
+    model = HeightNetModel(tiny_detector(tmp_path), detection_min_score=0.5)
+    assert model.info.detection and model.info.detection_classes == ("person", "cyclist", "vehicle")
+    assert model.info.detection_stride == 4
+    camera = camera_for_run(CameraConfig(height_m=5.0), 160, 72)
+    packet = FramePacket(Frame(0, 0.0, np.zeros((72, 160, 3), np.uint8)), camera)
+    packet = HeightEstimator(model, camera).process(packet)
+    detections = packet.network_detections
+    assert detections.classes == ("person",)
+    assert detections.boxes.tolist() == [pytest.approx((67.5, 18.0, 87.5, 42.0))]   # x 2.5, y 1.5
+    assert detections.scores.tolist() == [pytest.approx(1 / (1 + np.exp(-3.0)))]
+
+
+def test_models_without_a_declared_head_give_no_network_detections(tmp_path):
+    # Outputs named like a detector's but not declared in the metadata are left alone, as before.
+    model = HeightNetModel(make_tiny_contact_model(tmp_path / "v2.onnx", np.zeros((48, 64, 2)), np.zeros(6)))
+    assert not model.info.detection
+    assert model.infer(Frame(0, 0.0, np.zeros((48, 64, 3), np.uint8))).detections is None
+
+
+def test_a_declared_head_of_the_wrong_shape_is_a_model_error(tmp_path):
+    centre = np.zeros((3, 6, 8), np.float32)            # stride 8 declared, but box at another size
+    path = make_tiny_contact_model(tmp_path / "bad.onnx", np.zeros((48, 64, 2)), np.zeros(6),
+                                   detection=(["person", "cyclist", "vehicle"], centre, np.zeros((4, 12, 16))))
+    with pytest.raises(ModelError, match="output 'box'"):
+        HeightNetModel(path)
+
+
+# ------------------------------------------------------------------ which boxes are objects
+
+@pytest.mark.parametrize("who, cls, score, kept", [
+    ("stander", "person", 0.55, True),      # confident and still: found (blobs never find it)
+    ("stander", "person", 0.30, False),     # weak and still: dropped
+    ("walker", "person", 0.30, True),       # weak but moving: kept
+    ("walker", "person", 0.10, False),      # under score_motion: dropped, moving or not
+    ("stander", "cyclist", 0.55, False),    # each class has its own threshold
+    ("stander", "cyclist", 0.65, True),
+    ("stander", "vehicle", 0.65, False),
+    ("stander", "vehicle", 0.75, True),
+    ("walker", "vehicle", 0.30, True),      # the motion floor is shared
+])
+def test_thresholds_per_class_and_motion_as_a_cue(who, cls, score, kept):
+    person = STANDER if who == "stander" else walker(7)
+    packet = run(NETWORK_MODE, found((cls, score, box_of(person))))
+    if not kept:
+        assert packet.detections == []
+        return
+    (detection,) = packet.detections
+    assert detection.box == pytest.approx((person[0], person[1], person[2], person[3]))
+    assert (detection.cls, detection.cls_source, detection.score) == (cls, "network", pytest.approx(score))
+
+
+def test_a_standing_person_with_a_confident_box_is_detected_and_blobs_miss_them():
+    both = found(("person", 0.9, box_of(STANDER)), ("person", 0.9, box_of(walker(7))))
+    network = run(NETWORK_MODE, both)
+    assert sorted(d.box[0] for d in network.detections) == [STANDER[0], walker(7)[0]]
+    assert not network.foreground[STANDER[1]:STANDER[1] + STANDER[3], STANDER[0]:STANDER[0] + STANDER[2]].any()
+    # The same frames in blobs mode: the walker only (the background holds the stander), and the
+    # network's detections on the packet change nothing.
+    blobs = run(ObjectsConfig(), both)
+    assert [d.cls_source for d in blobs.detections] == ["objects"]
+    assert blobs.detections[0].box[0] == pytest.approx(walker(7)[0], abs=4)
+    plain = run(ObjectsConfig(), None)
+    assert [d.box for d in plain.detections] == [d.box for d in blobs.detections]
+    assert [d.heights for d in plain.detections] == [d.heights for d in blobs.detections]
+
+
+def test_a_motion_blob_without_a_box_is_no_object_unless_kept():
+    assert run(NETWORK_MODE, found()).detections == []
+    kept = run(dataclasses.replace(NETWORK_MODE, keep_motion_blobs=True), found()).detections
+    assert [(d.cls_source, round(d.height(), 1)) for d in kept] == [("objects", 1.8)]
+    # A blob the network has a box for is that box's object, not a second one.
+    boxed = run(dataclasses.replace(NETWORK_MODE, keep_motion_blobs=True),
+                found(("cyclist", 0.9, box_of(walker(7))))).detections
+    assert [(d.cls, d.cls_source) for d in boxed] == [("cyclist", "network")]
+
+
+def test_no_network_detections_no_objects():
+    """A model without a head (or a stand-in that gives none): nothing, even where things move."""
+    assert run(NETWORK_MODE, None).detections == []
+
+
+# ------------------------------------------------------------------ measuring one box
+
+EDGE = np.zeros((HEIGHT, WIDTH), bool)
+EDGE[:3], EDGE[-3:], EDGE[:, :3], EDGE[:, -3:] = True, True, True, True
+
+
+def measure(box, people=(STANDER,), config=NETWORK_MODE, cls="cyclist", wall=False) -> list[Detection]:
+    _, heights, ground = scene(list(people))
+    if wall:
+        # Scenery behind the object, seen beside its head: lower than the object's own top.
+        behind = heights[50:80, 30:70]
+        np.maximum(behind, 1.2, out=behind)
+        ground = heights < 0.1
+    return network_objects(found((cls, 0.9, box)), config, 0.1, heights, ground, None, EDGE)
+
+
+def test_the_height_comes_from_the_box_pixels_above_the_ground():
+    (detection,) = measure((35.6, 57.7, 64.4, 120.2), wall=True)
+    # Robust top of the box's own pixels: 1.70 m at the crown, plus half the step to the row below.
+    assert detection.height() == pytest.approx(1.70 + 0.5 * 1.65 / 59, abs=0.002)
+    assert detection.heights[NETWORK].source == "objects" and 0 < detection.heights[NETWORK].noise_m < 0.5
+    # The box is the pixels the network's box covers; the ends are its own (sub-pixel) top and bottom.
+    assert detection.box == (35.0, 57.0, 30.0, 64.0)
+    assert detection.foot_xy == pytest.approx((50.0, 120.2)) and detection.top_xy == pytest.approx((50.0, 57.7))
+    assert detection.mask.shape == (64, 30) and detection.mask.sum() == 1450   # 1160 of the person, 290 of the wall
+    assert (detection.cls, detection.cls_source) == ("cyclist", "network")      # the network's class
+    assert not (detection.touches_border or detection.foot_cut or detection.top_cut)
+
+
+def test_a_box_with_no_height_above_the_ground_is_an_object_without_a_height():
+    (detection,) = measure((200, 150, 230, 200))                # nothing above the ground there
+    assert detection.heights == {} and detection.cls == "cyclist"
+    (tall,) = measure(box_of(STANDER), config=dataclasses.replace(NETWORK_MODE, max_object_height_m=1.5))
+    assert tall.heights == {}                                   # out of the plausible range: no reading
+
+
+@pytest.mark.parametrize("box, touches, top_cut, foot_cut", [
+    ((40, 60, 60, 120), False, False, False),
+    ((40, 0, 60, 60), True, True, False),           # the frame's top cuts the object: no height, a bound
+    ((40, 180, 60, 245), True, False, True),        # runs off the bottom (clipped to the frame)
+    ((-5, 60, 20, 120), True, False, False),        # the side: touches, neither end cut
+])
+def test_a_box_reaching_the_image_edge_is_cut_there(box, touches, top_cut, foot_cut):
+    x0, y0, x1, y1 = box
+    person = (max(x0, 0), y0, min(x1, WIDTH) - max(x0, 0), min(y1, HEIGHT) - y0, 1.7)
+    (detection,) = measure(box, people=[person])
+    assert (detection.touches_border, detection.top_cut, detection.foot_cut) == (touches, top_cut, foot_cut)
+    assert 0 <= detection.box[0] and detection.box[0] + detection.box[2] <= WIDTH
+    assert detection.box[1] + detection.box[3] <= HEIGHT
+    assert (detection.heights[NETWORK].noise_m == np.inf) == top_cut
+
+
+# ------------------------------------------------------------------ later stages keep the network's word
+
+def test_geometry_keeps_the_networks_class_and_reclassifies_a_blobs():
+    camera = camera_from_pose(640, 480, intrinsics_from_fov(640, 480, 60), 5.0, 30.0)
+
+    def measured(source):
+        detection = Detection(box=(300, 200, 40, 200), cls="vehicle", cls_source=source,
+                              foot_xy=(320.0, 400.0), top_xy=(320.0, 200.0))
+        GeometryMeasurer(CameraConfig()).measure(camera, [detection])
+        return detection
+
+    assert (measured("network").cls, measured("network").cls_source) == ("vehicle", "network")
+    assert measured("objects").cls_source == "geometry"
+
+
+def test_a_network_box_is_never_cut_along_predicted_boxes():
+    def holding_two(source):
+        return Detection(box=(0.0, 0.0, 60.0, 40.0), cls="vehicle", cls_source=source, mask=np.ones((40, 60), bool))
+
+    predictions = [(2.0, 2.0, 25.0, 36.0), (33.0, 2.0, 25.0, 36.0)]
+    assert len(split_by_predictions([holding_two("objects")], predictions, ["person", "person"])) == 2
+    network = holding_two("network")
+    assert split_by_predictions([network], predictions, ["person", "person"]) == [network]
+
+
+# ------------------------------------------------------------------ configuration
+
+def test_thresholds_come_from_the_config_and_bad_values_are_errors(tmp_path):
+    assert class_thresholds(NETWORK_MODE) == {"person": 0.5, "cyclist": 0.6, "vehicle": 0.7}
+    assert min_score(NETWORK_MODE) == 0.2
+    with pytest.raises(ConfigError, match="objects.source"):
+        ObjectExtractor(ObjectsConfig(source="detector"), GroundConfig())
+    with pytest.raises(ConfigError, match="objects.score_vehicle"):
+        ObjectExtractor(ObjectsConfig(source="network", score_vehicle=1.5), GroundConfig())
+    with pytest.raises(ConfigError, match="score_bus"):
+        check_classes(NETWORK_MODE, ["person", "bus"], "model.onnx")
