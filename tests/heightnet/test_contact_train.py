@@ -215,3 +215,14 @@ def test_detection_targets_mark_each_mover_at_its_box_centre(contact_sequences):
                 inside = sample["instance"][frame, 0, rows, int(max(x0, 0)):int(np.ceil(x1))]
                 assert (inside > 0).any()
     assert total >= len(dataset)
+
+
+def test_heightpipe_export_writes_a_v2_model_and_says_so(contact_sequences, tmp_path, capsys):
+    from pipeline.cli import main
+
+    train_contact(small_config(tmp_path / "run"), contact_sequences, progress=False, max_steps=1)
+    out = tmp_path / "v2.onnx"
+    assert main(["export", "--checkpoint", str(tmp_path / "run" / "checkpoint.pt"), "--out", str(out)]) == 0
+    assert out.is_file() and "HeightNet v2" in capsys.readouterr().out
+    assert main(["export", "--checkpoint", str(tmp_path / "none.pt"), "--out", str(out)]) == 2
+    assert "no HeightNet v2 state" in capsys.readouterr().err
