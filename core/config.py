@@ -141,6 +141,9 @@ class TrackingConfig:
     """Minimum IoU for an association."""
     height_process_noise_m: float = 0.002
     """Per-frame random walk of the height state: near zero, objects do not grow."""
+    ignore_channels: list[str] = field(default_factory=list)
+    """Height channels the tracker does not fuse (e.g. ["geometry", "box"]: the network's own
+    heights, as issue 20 checks them on real footage)."""
     network_bias_share: float = 0.3
     """Std of the network's bias on one object, as a share of its height (constant over frames)."""
     geometry_bias_factor: float = 1.0

@@ -402,7 +402,7 @@ class ObjectTracker:
             track.height = None
             track.height_rejections.clear()
         track.height_geometry_trusted = not boxed
-        for channel, measurement in _channels_to_fuse(track, detection, boxed):
+        for channel, measurement in _channels_to_fuse(track, detection, boxed, self.config.ignore_channels):
             height, noise = measurement.value_m, measurement.noise_m
             if top_lost:
                 noise *= CONSTANTS.top_lost_noise_factor
@@ -474,15 +474,17 @@ class ObjectTracker:
         self.tracks.append(track)
 
 
-def _channels_to_fuse(track: _TrackState, detection: Detection, boxed: bool) -> list[tuple[str, Measurement]]:
-    """The detection's usable height measurements that measure this track, in the order they are fused.
+def _channels_to_fuse(track: _TrackState, detection: Detection, boxed: bool,
+                      ignored: list[str] = ()) -> list[tuple[str, Measurement]]:
+    """The detection's usable height measurements that measure this track, in the order they are
+    fused (``ignored``: channels the configuration leaves out).
 
     The network's first. Then, for a vehicle track, the box fitted to its outline where the box
     lies along the way the track drives; for any other track the foot/top geometry, which stands in
     for a vehicle only when nothing else measures it (its foot/top height is the far roof edge's:
     ~0.8 m high on generator data). Then every other channel a stage added, as it is.
     """
-    usable = {channel: m for channel, m in detection.heights.items() if m.usable}
+    usable = {channel: m for channel, m in detection.heights.items() if m.usable and channel not in ignored}
     chosen = [(NETWORK, usable[NETWORK])] if NETWORK in usable else []
     if boxed and BOX in usable and _box_agrees(track, detection):
         chosen.append((BOX, usable[BOX]))

@@ -79,3 +79,11 @@ def test_a_copied_detection_keeps_its_own_measurements():
     second.add_height("stereo", Measurement(1.8, 0.05, source="stereo"))
     assert list(first.heights) == [NETWORK] and list(second.heights) == [NETWORK, "stereo"]
     assert np.isnan(first.height("stereo")) and second.height("stereo") == 1.8
+
+
+def test_ignored_channels_are_not_fused():
+    """tracking.ignore_channels: the network's heights alone, though another channel measures."""
+    config = TrackingConfig(min_hits=1, stature_window=0, ignore_channels=["stereo"])
+    track = _run([StereoHeights(), TrackingStage(config)], network_m=1.50).tracks[0]
+    assert track.height_m == pytest.approx(1.50, abs=0.01)
+    assert track.height_source != "fused"
