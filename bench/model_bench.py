@@ -1,16 +1,18 @@
 """ONNX Runtime speed of the height network configurations on this CPU.
 
-    python -m bench.model_bench [--threads 2] [--width 320 --height 192] [--shipped]
+    python -m bench.model_bench [--threads 2] [--width 320 --height 192] [--shipped] [--model FILE ...]
 
 Prints one row per configuration (config, input size, parameters, ms/frame, frames/s, speed
 relative to the paper configuration). Untrained networks are exported to a temporary folder:
-speed does not depend on the weights. ``--shipped`` adds the shipped stages/models/heightnet.onnx.
+speed does not depend on the weights. ``--shipped`` adds the shipped stages/models/heightnet.onnx
+and HeightNet v2 (stages/models/heightnet_v2.onnx) where it is exported; ``--model`` any ONNX file.
 Timing is the best of several rounds, so other processes on a shared machine inflate it less.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -19,6 +21,7 @@ import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = REPO_ROOT / "stages" / "models" / "heightnet.onnx"
+SHIPPED_V2 = REPO_ROOT / "stages" / "models" / "heightnet_v2.onnx"
 
 
 def time_onnx(path: Path, threads: int, rounds: int, runs: int) -> tuple[float, int, int]:
@@ -50,7 +53,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--configs", default="light,paper")
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--runs", type=int, default=10)
-    parser.add_argument("--shipped", action="store_true", help="also time stages/models/heightnet.onnx")
+    parser.add_argument("--shipped", action="store_true", help="also time the shipped models")
+    parser.add_argument("--model", action="append", default=[], type=Path, metavar="FILE",
+                        help="also time this ONNX file (repeatable)")
+    parser.add_argument("--no-configs", action="store_true", help="time only --shipped / --model files")
     args = parser.parse_args(argv)
 
     import torch
@@ -61,20 +67,26 @@ def main(argv: list[str] | None = None) -> int:
     torch.manual_seed(0)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for name in args.configs.split(","):
+        for name in ([] if args.no_configs else args.configs.split(",")):
             net = build_model(name, "relative").eval()
             path = Path(tmp) / f"{name}.onnx"
             export_model(net, path, args.width, args.height)
             runs = args.runs if name == "light" else max(2, args.runs // 5)
             seconds, w, h = time_onnx(path, args.threads, args.rounds, runs)
             rows.append((name, f"{w}x{h}", count_parameters(net), seconds))
-    if args.shipped:
+    files = [("shipped", SHIPPED), ("shipped v2", SHIPPED_V2)] if args.shipped else []
+    files += [(str(path), path) for path in args.model]
+    for name, path in files:
         import onnx
 
-        model = onnx.load(str(SHIPPED))
+        if not path.is_file():
+            if name == "shipped v2":
+                continue   # not exported yet
+            sys.exit(f"error: no ONNX file at {path}")
+        model = onnx.load(str(path))
         params = sum(int(np.prod(t.dims)) for t in model.graph.initializer)
-        seconds, w, h = time_onnx(SHIPPED, args.threads, args.rounds, args.runs)
-        rows.append(("shipped", f"{w}x{h}", params, seconds))
+        seconds, w, h = time_onnx(path, args.threads, args.rounds, args.runs)
+        rows.append((name, f"{w}x{h}", params, seconds))
 
     paper = next((r[3] for r in rows if r[0] == "paper"), None)
     print(f"ONNX Runtime {args.threads} threads, best of {args.rounds} rounds")
