@@ -44,6 +44,13 @@ class BlobSplittingConstants:
     heads_min_gap: float = 0.2
     heads_min_dip: float = 0.08
     heads_min_share: float = 0.75
+    # ... and only a blob whose columns stand, in the median, no higher than a person can: above
+    # object extraction's line for vehicles (``coarse_class``: 2.4 m) the dips on the outline are
+    # not shoulders. A dark bus passing dark windows loses its roof's foreground in patches, and
+    # its outline showed 5-8 "heads" (generator occlusion scene, seq 1: the bus's track split into
+    # three, each firing a height rule).
+    heads_max_height_m: float = 2.4
+
 
 CONSTANTS = BlobSplittingConstants()
 
@@ -135,7 +142,8 @@ def _split_by_seeds(blob: np.ndarray, seeds: list[np.ndarray], min_area: float) 
     return pieces if len(pieces) >= 2 else [blob]
 
 
-def split_by_heads(part: np.ndarray, fg: np.ndarray, min_area: float) -> list[np.ndarray]:
+def split_by_heads(part: np.ndarray, fg: np.ndarray, min_area: float,
+                   heights: np.ndarray | None = None) -> list[np.ndarray]:
     """Split a wide blob into columns, one per head on its foreground outline.
 
     A group walking close together is one foreground blob with one smooth hump in the network's
@@ -143,7 +151,10 @@ def split_by_heads(part: np.ndarray, fg: np.ndarray, min_area: float) -> list[np
     show the heads: the top row of foreground in each column dips between two people by their
     shoulders. Peaks of that outline at least ``CONSTANTS.heads_min_gap`` of the blob's height apart, with
     a dip of ``CONSTANTS.heads_min_dip`` between them, cut the blob at the dip. A car's roof is one flat
-    peak and stays whole; so does a blob any of whose pieces would be wider than a person.
+    peak and stays whole; so does a blob any of whose pieces would be wider than a person, and,
+    given the height map (``heights``, the part's frame), one taller than a person: the median
+    over its columns of their top height above ``CONSTANTS.heads_max_height_m`` (the median, so
+    that a few columns grown into scenery behind a group do not decide).
     """
     rows = np.flatnonzero(part.any(axis=1))
     cols = np.flatnonzero(part.any(axis=0))
@@ -152,6 +163,10 @@ def split_by_heads(part: np.ndarray, fg: np.ndarray, min_area: float) -> list[np
     span = rows[-1] - rows[0] + 1
     if cols[-1] - cols[0] + 1 < CONSTANTS.heads_min_aspect * span:
         return [part]
+    if heights is not None:
+        column_tops = np.where(part, heights, -np.inf).max(axis=0)[cols]
+        if float(np.median(column_tops)) > CONSTANTS.heads_max_height_m:
+            return [part]
     moving = part & fg
     has = moving.any(axis=0)
     # Outline: how high above the part's bottom the foreground reaches in each column (0: none).

@@ -368,7 +368,7 @@ class ObjectExtractor:
             for piece in pieces:
                 parts = [piece] if heights is None else split_by_height_peaks(piece, heights, min_area_work)
                 if by_heads:
-                    parts = [head for part in parts for head in split_by_heads(part, fg, min_area_work)]
+                    parts = [head for part in parts for head in split_by_heads(part, fg, min_area_work, heights)]
                 for part in parts:
                     # A part cut off by height (a facade beside a walker) must be moving itself.
                     if (fg is not None and len(parts) > 1

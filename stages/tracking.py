@@ -15,7 +15,9 @@ One frame, in order:
    of the box, the height difference and how much the step from the track's last observed box
    goes against its motion (OC-SORT's momentum); pairs outside the motion gate, with neither
    overlap nor votes, or (for a track not seen last frame) with a box half or twice its height,
-   are not allowed.
+   are not allowed, nor are those beyond the height gate unless the box lies on the prediction
+   (IoU >= 0.5: then the height is a measurement gone wrong, e.g. an occluder's edge in the
+   blob, and only the height filter's outlier gate skips it; the track keeps its object).
 4. Second chance (OC-SORT's observation-centric recovery): tracks left over are matched on
    the IoU of their *last observed* box, which does not drift while the object is hidden, or
    of their predicted box grown by a buffer that widens with every frame missed (C-BIoU).
@@ -76,6 +78,11 @@ class TrackerConstants:
     # lost its top (occluded head, merged blob split): its height is trusted this much less.
     top_lost_share: float = 0.15
     top_lost_noise_factor: float = 3.0
+    # A box overlapping a track's prediction at least this much (the MOT metrics' match) is that
+    # track's object whatever height it reads: the height gate does not refuse it, the height
+    # filter's outlier gate skips the height. Refused, the object got a second track (generator
+    # occlusion scene: a bus behind a building's corner read 4.7 m for its last 20 frames).
+    height_free_iou: float = 0.5
     # Tracks overlapping more than this are one object counted twice (ByteTrack uses 0.85).
     duplicate_iou: float = 0.8
     # The stature window (gait correction) applies to these classes: a walker's head dips with every
@@ -264,7 +271,7 @@ class ObjectTracker:
         distance = np.array([t.motion.mahalanobis_sq(boxes) for t in self.tracks])
         height_gap = self._height_gaps(detections)
         allowed = ((iou >= self.config.iou_gate) | (votes >= self.config.min_vote_share)) & (distance <= gate)
-        allowed &= height_gap <= 1.0
+        allowed &= (height_gap <= 1.0) | (iou >= CONSTANTS.height_free_iou)
         # A coasting track's box grows uncertain in size too; an object seen again is not half or
         # twice as tall (Oxford: a walker cut by the top edge, coasting, took the legs of another).
         box_heights = np.array([b[3] for b in boxes], dtype=float)

@@ -75,3 +75,13 @@ def test_a_car_a_lone_walker_and_a_low_dip_stay_whole():
     bumps = np.ones((24, 24), bool)
     bumps[0, 8:16] = False                                     # a one-row dip: not two heads
     assert len(split_by_heads(bumps, bumps, min_area=20)) == 1
+
+
+def test_a_blob_taller_than_a_person_is_no_row_of_heads():
+    """A dark bus passing dark windows loses its roof's foreground in patches: its outline dips
+    like a group's, but a blob whose columns stand higher than a person is not cut at them."""
+    group = np.hstack([_person_shape(), _person_shape(), _person_shape()])
+    people = np.where(group, 1.7, 0.0)
+    assert len(split_by_heads(group, group, min_area=20, heights=people)) == 3
+    bus = np.where(group, 3.4, 0.0)
+    assert len(split_by_heads(group, group, min_area=20, heights=bus)) == 1

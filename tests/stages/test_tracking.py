@@ -310,6 +310,23 @@ def test_one_wild_height_does_not_move_a_settled_track():
     assert tracks[0].height_m == pytest.approx(settled, abs=1e-6)
 
 
+def test_a_box_on_the_prediction_keeps_its_track_whatever_height_it_reads():
+    """A settled 3.4 m vehicle drives behind a building's corner, whose edge joins its blob:
+    five frames read 4.7 m. The box still lies on the prediction, so the track keeps its id
+    (refused by the height gate, the vehicle got a second track); the heights are skipped."""
+    tracker = ObjectTracker(TrackingConfig(stature_window=0))
+    for frame in range(20):
+        tracks = tracker.update([_detection(10 + 4 * frame, 50, 3.4, w=120, h=45, noise_m=0.1, cls="vehicle")])
+    (track,) = tracks
+    for frame in range(20, 25):
+        tracks = tracker.update([_detection(10 + 4 * frame, 50, 4.7, w=120, h=45, noise_m=0.1, cls="vehicle")])
+    assert [t.track_id for t in tracks] == [track.track_id] and tracks[0].updated
+    assert tracks[0].height_m == pytest.approx(track.height_m, abs=0.01)
+    # A box off the prediction (a vehicle beside it) is still kept apart by its height.
+    tracks = tracker.update([_detection(10 + 4 * 25 + 70, 50, 4.7, w=120, h=45, noise_m=0.1, cls="vehicle")])
+    assert track.track_id not in [t.track_id for t in tracks if t.updated]
+
+
 def test_a_geometry_channel_rejected_every_frame_restarts_a_height_born_wrong():
     """Born from a merged blob the network reads 3.0 m (no geometry: feet hidden), then the
     network reads 2.5 m and the geometry 1.8 m.
