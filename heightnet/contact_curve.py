@@ -19,7 +19,8 @@ CLASSES = (("person", "people"), ("cyclist", "cyclists"), ("car_van", "cars/vans
 
 def read_curve(path: Path) -> list[dict[str, float]]:
     with path.open(newline="") as f:
-        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+        # Columns added since a row was written (a grown network) are empty in it: NaN.
+        return [{k: float(v) if v != "" else float("nan") for k, v in row.items()} for row in csv.DictReader(f)]
 
 
 def plot_curves(runs: dict[str, list[dict[str, float]]], png: Path) -> None:

@@ -30,6 +30,10 @@ from stages.centre_detections import centre_detections, in_frame
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
 SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
 """The shipped model quantised to INT8 (heightnet/quantize.py): ``height.model = "int8"``."""
+SHIPPED_V2_MODEL = SHIPPED_MODEL.with_name("heightnet_v2.onnx")
+"""HeightNet v2 (ground-contact offsets, camera heads, detection head) as exported from the
+committed training state: ``height.model = "v2"``, opt-in while it trains."""
+NAMED_MODELS = {"int8": SHIPPED_INT8_MODEL, "v2": SHIPPED_V2_MODEL}
 CONTACT_UNITS = "ground_contact_offsets"
 """HeightNet v2's units (heightnet/contact_export.py writes them)."""
 OUTPUT_UNITS = ("metres", "camera_height_fraction", CONTACT_UNITS)
@@ -142,7 +146,7 @@ class HeightNetModel:
     Parameters
     ----------
     model_path : str or Path
-        "" = the shipped model, "int8" = its INT8 version, else an exported file.
+        "" = the shipped model, "int8" = its INT8 version, "v2" = HeightNet v2, else an exported file.
     threads : int
         ONNX Runtime intra-op threads.
     detection_min_score : float
@@ -154,7 +158,7 @@ class HeightNetModel:
                  detection_min_score: float = CONSTANTS.detection_min_score):
         import onnxruntime as ort
 
-        path = SHIPPED_INT8_MODEL if str(model_path) == "int8" else Path(model_path) if model_path else SHIPPED_MODEL
+        path = NAMED_MODELS.get(str(model_path)) or (Path(model_path) if model_path else SHIPPED_MODEL)
         if not path.is_file():
             raise ModelError(f"model file not found: {path}")
         options = ort.SessionOptions()

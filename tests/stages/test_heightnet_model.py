@@ -91,3 +91,10 @@ def test_shipped_int8_model_loads_with_the_fp32_metadata_and_agrees_with_it():
     assert ok
     a, b = fp32.infer(Frame(0, 0.0, image)), int8.infer(Frame(0, 0.0, image))
     assert np.mean(np.abs(a.height - b.height)) < 0.05 * np.mean(np.abs(a.height)) + 1e-3
+
+
+def test_the_shipped_v2_model_is_named_v2():
+    from stages.heightnet_model import HeightNetModel
+
+    model = HeightNetModel("v2", threads=1)
+    assert model.info.contact
