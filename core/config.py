@@ -57,8 +57,9 @@ class GroundConfig:
 @dataclass
 class HeightConfig:
     model: str = ""
-    """ONNX model path ("" = the model shipped in stages/models/, "int8" = its INT8 quantisation, "v2" = HeightNet v2); a v1
-    or a ground-contact (v2) export, told apart by its metadata (v2 needs the camera: README)."""
+    """ONNX model path ("" = the model shipped in stages/models/, "int8" = its INT8 quantisation,
+    "v2" = HeightNet v2); a v1 or a ground-contact (v2) export, told apart by its metadata (v2
+    needs the camera: README)."""
     threads: int = 2
     """ONNX Runtime intra-op threads."""
 
