@@ -173,8 +173,9 @@ def level(trunk: str, cin: int, cout: int, stride: int) -> nn.Sequential:
 
 
 class ContactNet(nn.Module):
-    """Encoder to 1/16 (plus context), decoder with skips back to 1/2, heads at 1/2, detection
-    at 1/4, camera from the bottleneck. Returns (offsets, ground, camera[, centre, box])."""
+    """Encoder to 1/16 (plus context), decoder with skips back to 1/2, heads at 1/2 (refined at
+    full resolution), detection at 1/4, camera from the bottleneck. Returns (offsets, ground,
+    camera[, centre, box])."""
 
     def __init__(self, arch: ContactArchitecture = ContactArchitecture()):
         super().__init__()
