@@ -20,9 +20,11 @@ import torch
 from heightnet.contact_model import CAMERA_OUTPUTS, DETECTION_CLASSES, DETECTION_STRIDE, ContactNet
 from heightnet.contact_train import load_network
 from heightnet.export import input_metadata
+from stages.heightnet_model import CONTACT_UNITS
 
 OPSET = 17
-OUTPUT_UNITS = "ground_contact_offsets"
+# What the run-time stage reads the offsets as (stages/heightnet_model.py tells v1 from v2 by it).
+OUTPUT_UNITS = CONTACT_UNITS
 
 
 def output_names(net: ContactNet) -> list[str]:

@@ -16,11 +16,8 @@ import numpy as np
 from scipy import ndimage
 
 from heightnet.contact_model import BOX_UNIT_PX, DETECTION_CLASSES, DETECTION_STRIDE
-from synth.dataset import CLASS_NAMES
+from synth.dataset import CLASS_NAMES, COARSE_CLASS
 
-# Generator classes -> detection classes; others (parked vehicles, furniture) are background.
-DETECTION_CLASS_OF = {"pedestrian": "person", "cyclist": "cyclist", "car": "vehicle", "van": "vehicle",
-                      "truck": "vehicle", "bus": "vehicle"}
 # Boxes smaller than this (input pixels, height) are not asked for: a 3-pixel person is noise.
 MIN_BOX_PX = 4.0
 # Gaussian width as a share of the box (TTFNet's alpha) and its floor in heatmap cells.
@@ -48,7 +45,9 @@ def window_boxes(instance: np.ndarray, semantic: np.ndarray, scale_x: float, sca
         ys, xs = found
         pixels = instance[found] == index
         classes = np.bincount(semantic[found][pixels], minlength=len(CLASS_NAMES))
-        name = DETECTION_CLASS_OF.get(CLASS_NAMES[int(classes.argmax())])
+        # Generator classes in the tracker's coarse terms; others (parked vehicles, furniture)
+        # are background.
+        name = COARSE_CLASS.get(CLASS_NAMES[int(classes.argmax())])
         if name is None:
             continue
         x0, x1 = xs.start * scale_x, xs.stop * scale_x
