@@ -393,6 +393,9 @@ class TrainV2Config:
     refine: int = 8
     """Channels of the full-resolution refinement of offsets and ground (0 = none): half-resolution
     outputs blur thin objects (people, cyclists) into the ground around them."""
+    gate: bool = True
+    """Offsets cut by a learnt gate on the full-resolution ground logit, so that the half-resolution
+    offset head can predict a smooth field instead of thin outlines (heightnet/contact_model.py)."""
     crop_probability: float = 0.5
     """Share of samples that are native-resolution windows around a mover (else whole frames)."""
     max_matches: int = 64
@@ -409,10 +412,11 @@ class TrainV2Config:
     """The paper's scale-invariant log loss on decoded mover heights."""
     consistency_weight: float = 1.0
     """The paper's height consistency (Eq. 2, m^2) at matched points of frames t-1, t."""
-    ground_weight: float = 0.2
+    ground_weight: float = 1.0
+    """Ground-plane cross-entropy (the offset gate cuts the offsets along this logit)."""
     camera_weight: float = 1.0
     """Camera heads' Huber fit + variance NLL (pitch, roll, focal length; whole frames only)."""
-    detection_weight: float = 1.0
+    detection_weight: float = 3.0
     """Centre focal loss + box L1 of the detection head."""
 
 

@@ -38,12 +38,13 @@ LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "
                "centre", "box", "mover_rmse_cm"]
 WARMUP_STEPS = 200
 # Modules a grown network may add to a state (contact_model.ContactArchitecture.grows_from).
-GROWN_PARTS = ("context.", "detection_head.", "refinement.")
+GROWN_PARTS = ("context.", "detection_head.", "refinement.", "offset_gate.")
 
 
 def architecture_of(config: TrainV2Config) -> ContactArchitecture:
     return ContactArchitecture(config.trunk, tuple(config.widths), 2 if config.camera_channels else 0,
-                               tuple(config.context), config.detection, config.refine)
+                               tuple(config.context), config.detection, config.refine,
+                               config.gate)
 
 
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
