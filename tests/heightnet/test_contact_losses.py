@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from heightnet.contact_losses import box_l1, camera_nll, centre_focal
+from heightnet.contact_losses import box_l1, camera_nll, centre_focal, ground_loss, object_weights
 
 
 def test_camera_mean_keeps_its_gradient_when_the_head_claims_a_large_variance():
@@ -48,3 +48,22 @@ def test_focal_loss_is_lower_at_the_right_peak_and_box_l1_only_counts_centres():
     goal = torch.zeros(1, 4, 5, 5)         # centre offset 0, log(size / 16 px) = 0
     # Only the masked cell counts: |4| + |4| + 0 + 0 over four numbers.
     assert abs(float(box_l1(box, goal, mask)) - 2.0) < 1e-6
+
+
+def test_a_small_mover_called_ground_costs_as_much_as_a_large_area_of_ground_called_object():
+    """Averaged over the frame, 4 wrong pixels of a small person would cost 1/64 of the frame's
+    ground being wrong; weighted per object they cost more than a quarter of the frame wrong."""
+    ground = torch.ones(1, 1, 16, 16)
+    instance = torch.zeros(1, 1, 16, 16, dtype=torch.long)
+    ground[..., 7:9, 7:9] = 0
+    instance[..., 7:9, 7:9] = 1
+    labelled = torch.ones_like(ground, dtype=torch.bool)
+    per_object = object_weights(instance, instance > 0)
+    right = torch.where(ground > 0, 5.0, -5.0)
+    mover_wrong = right.clone()
+    mover_wrong[..., 7:9, 7:9] = 5.0
+    ground_wrong = right.clone()
+    ground_wrong[..., :4, :] = -5.0
+    base = ground_loss(right, ground, labelled, per_object)
+    assert ground_loss(mover_wrong, ground, labelled, per_object) - base > \
+        ground_loss(ground_wrong, ground, labelled, per_object) - base
