@@ -9,7 +9,9 @@ camera heads, averaged over the sequence's frames as a fixed camera would be.
   class group (people, cyclists, cars/vans, trucks/buses);
 * mover-pixel RMSE (true height > 0.1 m on a mover) per camera-height row, with and without
   trucks and buses;
-* the camera heads' median pitch error (degrees) and focal-length error (per cent);
+* the camera heads' median pitch error (degrees), focal-length error and horizon error (per cent;
+  the horizon's height above the image centre, f tan(pitch): what heights from a camera height
+  depend on most);
 * with a detection head: per class, the share of true boxes (at least ``MIN_BOX_PX`` tall at the
   input size) found at IoU >= 0.5 and score >= ``DETECTION_SCORE`` (recall), and the share of
   detections that match a true box (precision).
@@ -55,6 +57,7 @@ class Scores:
     pitch_error_deg: float = float("nan")
     focal_error_pct: float = float("nan")
     roll_error_deg: float = float("nan")
+    horizon_error_pct: float = float("nan")
     detection_recall: dict[str, float] = field(default_factory=dict)    # per detection class
     detection_precision: float = float("nan")
 
@@ -86,7 +89,7 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
     sq: dict[str, list[np.ndarray]] = defaultdict(list)
     sq_all: dict[str, list[np.ndarray]] = defaultdict(list)
     sq_heads: dict[str, list[np.ndarray]] = defaultdict(list)
-    pitch_err, focal_err, roll_err = [], [], []
+    pitch_err, focal_err, roll_err, horizon_err = [], [], [], []
     found_true: dict[int, list[bool]] = defaultdict(list)
     detections_matched: list[bool] = []
     for seq in sequences:
@@ -101,6 +104,7 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
         pitch_err.append(abs(math.degrees(mean_camera[0] - truth_cam[0])))
         roll_err.append(abs(math.degrees(mean_camera[1] - truth_cam[1])))
         focal_err.append(abs(math.exp(mean_camera[2] - truth_cam[2]) - 1) * 100)
+        horizon_err.append(abs(_horizon(mean_camera) / _horizon(truth_cam) - 1) * 100)
         for t, (offsets, _, found) in zip(used, outputs):
             if found is not None:
                 truths = window_boxes(np.asarray(seq.instance[t]), np.asarray(seq.semantic[t]),
@@ -148,12 +152,18 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
     scores.pitch_error_deg = float(np.median(pitch_err))
     scores.roll_error_deg = float(np.median(roll_err))
     scores.focal_error_pct = float(np.median(focal_err))
+    scores.horizon_error_pct = float(np.median(horizon_err))
     for index, name in enumerate(DETECTION_CLASSES):
         if found_true[index]:
             scores.detection_recall[name] = float(np.mean(found_true[index]))
     if detections_matched:
         scores.detection_precision = float(np.mean(detections_matched))
     return scores
+
+
+def _horizon(camera: np.ndarray) -> float:
+    """The horizon's height above the image centre in image heights: f tan(pitch)."""
+    return math.exp(camera[2]) * math.tan(camera[0])
 
 
 def _match_detections(found: CentreDetections, truths: list, found_true: dict[int, list[bool]],
@@ -191,6 +201,7 @@ def scores_row(scores: Scores) -> dict[str, float]:
     row["pitch_error_deg"] = scores.pitch_error_deg
     row["roll_error_deg"] = scores.roll_error_deg
     row["focal_error_pct"] = scores.focal_error_pct
+    row["horizon_error_pct"] = scores.horizon_error_pct
     for name in DETECTION_CLASSES:
         row[f"det_recall_{name}"] = scores.detection_recall.get(name, float("nan"))
     row["det_precision"] = scores.detection_precision

@@ -20,6 +20,19 @@ def test_camera_mean_keeps_its_gradient_when_the_head_claims_a_large_variance():
     assert grads[0][0] < 0 and grads[0][1] == 0
 
 
+def test_camera_loss_cares_most_about_where_the_horizon_is():
+    """Two heads equally far off in pitch and focal length: the one whose errors keep the horizon
+    (f tan(pitch)) in place costs less, as heights from a camera height need the horizon most."""
+    import math
+
+    target = torch.tensor([[0.5, 0.0, 0.0]])
+    log_focal = math.log(math.tan(0.5) / math.tan(0.55))   # < 0: shorter lens, same horizon
+    kept = torch.tensor([[0.55, 0.0, log_focal, 0.0, 0.0, 0.0]])
+    moved = torch.tensor([[0.55, 0.0, -log_focal, 0.0, 0.0, 0.0]])
+    valid = torch.tensor([True])
+    assert camera_nll(kept, target, valid) < camera_nll(moved, target, valid) - 1.0
+
+
 def test_camera_variance_learns_the_size_of_the_error():
     target = torch.tensor([[0.1, 0.0, 0.0]])
     log_var = torch.zeros(1, requires_grad=True)
