@@ -199,6 +199,10 @@ class Detection:
     vehicle_length_assumed: bool = False
     """Only the box's end was seen: its length is a car's by assumption (and a bicycle seen from
     the side looks the same; the tracker tells them apart by the direction they move)."""
+    blob: int | None = None
+    """Which of this frame's above-ground blobs object extraction cut the detection from (pieces
+    of one blob share it; None where no blob made it): the tracker joins a vehicle's pieces only
+    within one blob (``stages.vehicle_fragments``)."""
 
     def add_height(self, channel: str, measurement: Measurement) -> None:
         """Record the channel's measurement (replacing one already there). Copy on write: a

@@ -384,6 +384,7 @@ class ObjectExtractor:
                     detection = self._piece_to_detection(part, (x, y), height_map, scale, edge, beyond, ends,
                                                          outline)
                     if detection is not None:
+                        detection.blob = label
                         detections.append(detection)
         return detections
 

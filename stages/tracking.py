@@ -10,7 +10,9 @@ One frame, in order:
 2. Predict every track (constant-velocity box, near-constant height). A detection holding the
    predicted boxes of two or more tracks seen a frame ago (walkers passing close: one blob) is
    cut into one piece per track (``merged_blobs``; never a box of the network's detection head);
-   the pieces move boxes, not heights.
+   the pieces move boxes, not heights. The other way round, pieces of one blob side by side inside
+   a vehicle track's prediction (the network's lumpy map on a bus cut it by height peaks) are
+   joined into one detection for it (``vehicle_fragments``).
 3. Associate (Hungarian) on a cost mixing IoU, matched-point votes, the Mahalanobis distance
    of the box, the height difference and how much the step from the track's last observed box
    goes against its motion (OC-SORT's momentum); pairs outside the motion gate, with neither
@@ -56,6 +58,7 @@ from core.packets import BOX, GEOMETRY, NETWORK, Detection, FeatureMatches, Fram
 from stages.association import Region, assign, direction_mismatch, feature_votes, iou_matrix
 from stages.kalman import FilterFactory, HeightFilter, MotionFilter, MotionSnapshot, StatureWindow
 from stages.merged_blobs import split_by_predictions
+from stages.vehicle_fragments import join_fragments
 
 
 @dataclass(frozen=True)
@@ -209,6 +212,7 @@ class ObjectTracker:
         claimants = [t for t in self.tracks if t.confirmed and t.misses <= CONSTANTS.merge_max_misses]
         detections = split_by_predictions(detections, [t.motion.box for t in claimants],
                                           [t.cls for t in claimants])
+        detections = join_fragments(detections, [t.motion.box for t in claimants], [t.cls for t in claimants])
         cost, allowed = self._association_cost(detections, matches)
         result = assign(cost, allowed)
         matched = list(result.matches)

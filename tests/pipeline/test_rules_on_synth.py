@@ -9,6 +9,10 @@ test is about tracking and rules, not the network) with one rule: any object at 
 2.5 m, settled to 10 cm, for 5 frames. Each firing is attributed to the generator object its
 track followed most (IoU >= 0.5): the bus must fire exactly once (a split track fires again),
 nothing below 2.5 m at all.
+
+The same with the shipped network (``eval-tracks``' default), whose heights never settle to
+10 cm on these objects (std 0.27-0.39 m), so its rule has no std limit: its height map cuts the
+bus into pieces side by side (``stages/vehicle_fragments.py``), and each piece's track fired.
 """
 
 from __future__ import annotations
@@ -41,16 +45,18 @@ def occlusion_sequences(tmp_path_factory):
     return list_sequences(out)
 
 
+@pytest.mark.parametrize("heights", ["oracle", "model"])
 @pytest.mark.parametrize("index", [0, 1])
-def test_every_object_above_the_threshold_fires_once_and_none_below(occlusion_sequences, index):
+def test_every_object_above_the_threshold_fires_once_and_none_below(occlusion_sequences, index, heights):
     from core.config import Config, RuleConfig
     from pipeline.eval_metrics import matched_at_iou
     from pipeline.eval_sequences import build_eval_chain, prime_sequence_background, sequence_packets
 
     sequence, config = occlusion_sequences[index], Config()
     # The rules stage joins the chain after tracking, as in `heightpipe run`.
-    config.rules = [RuleConfig(name="over_2_5m", min_height_m=THRESHOLD_M, max_std_m=0.10, min_frames=5)]
-    chain = build_eval_chain(sequence, config, "oracle", geometry=True)
+    settled = {"max_std_m": 0.10} if heights == "oracle" else {}
+    config.rules = [RuleConfig(name="over_2_5m", min_height_m=THRESHOLD_M, min_frames=5, **settled)]
+    chain = build_eval_chain(sequence, config, heights, geometry=True)
     assert chain.stages[-1][0] == "rules"
     prime_sequence_background(sequence, chain, config)
 
