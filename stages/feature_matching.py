@@ -86,9 +86,18 @@ class FeatureMatcher:
             heights = cv2.resize(heights, size, interpolation=cv2.INTER_NEAREST)
         return heights > self.height_threshold_m
 
+    def downscale(self, width: int) -> int:
+        """The matching image is 1/N of a frame ``width`` wide: ``downscale``, or more where the
+        frame is wider than ``max_width`` times it (the window and ORB's budget are sized for the
+        matching image, not for the source)."""
+        scale = max(1, self.config.downscale)
+        if self.config.max_width > 0:
+            scale = max(scale, -(-width // self.config.max_width))
+        return scale
+
     def process(self, packet: FramePacket) -> FramePacket:
         gray = cv2.cvtColor(packet.frame.image, cv2.COLOR_BGR2GRAY)
-        scale = self.config.downscale
+        scale = self.downscale(gray.shape[1])
         if scale > 1:
             gray = cv2.resize(gray, (gray.shape[1] // scale, gray.shape[0] // scale), interpolation=cv2.INTER_AREA)
         above_ground = self._above_ground(packet, gray.shape[::-1])
