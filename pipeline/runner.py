@@ -161,7 +161,8 @@ def build_sinks(outputs: RunOutputs, config: Config, recording_name: str,
         if outputs.objects is not None:
             from stages.objects_table import ObjectsSink
 
-            sinks.append(("objects", ObjectsSink(outputs.objects, objects or ObjectTable())))
+            # Not "objects": sink and stage times share packet.timings_ms, and the stage has that name.
+            sinks.append(("objects.csv", ObjectsSink(outputs.objects, objects or ObjectTable())))
         if outputs.events is not None:
             from stages.events_sink import EventsSink
 

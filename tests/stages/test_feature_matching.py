@@ -76,3 +76,23 @@ def test_a_hidden_background_gives_no_camera_motion():
     prev, curr = _still_and_drifting_points(0, 80, 4.0)
     motion, agree = matcher._camera_motion(prev, curr)
     assert motion[0, 2] == pytest.approx(4.0, abs=0.2) and agree.sum() >= 75
+
+
+@pytest.mark.parametrize(("width", "max_width", "expected"),
+                         [(320, 320, 2), (640, 320, 2), (1920, 320, 6), (1280, 320, 4), (1921, 320, 7),
+                          (1920, 0, 2)])
+def test_wide_frames_are_matched_on_an_image_at_most_max_width_wide(width, max_width, expected):
+    matcher = FeatureMatcher(MatchingConfig(downscale=2, max_width=max_width), GroundConfig())
+    assert matcher.downscale(width) == expected
+
+
+def test_a_wide_frame_reports_points_in_source_pixels():
+    image, height = _scene()
+    wide_image = cv2.resize(image, (1280, 720), interpolation=cv2.INTER_NEAREST)
+    wide_height = cv2.resize(height, (1280, 720), interpolation=cv2.INTER_NEAREST)
+    matcher = FeatureMatcher(MatchingConfig(max_width=320), GroundConfig())
+    matcher.process(_packet(0, wide_image, wide_height))
+    packet = matcher.process(_packet(1, wide_image, wide_height))
+    points = packet.matches.curr_pts
+    assert len(points) > 0 and points[:, 0].max() > 640 and points[:, 1].max() > 360
+    assert np.allclose(packet.matches.curr_pts, packet.matches.prev_pts, atol=1.0)
