@@ -6,12 +6,26 @@ they are made again when a benchmark needs them and is not handed one.
 
 from __future__ import annotations
 
+import argparse
+import tempfile
 from pathlib import Path
 
 import cv2
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SAMPLE = REPO_ROOT / "recordings" / "sample.mp4"
+
+
+def add_clip_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options shared by the benchmarks that run the sample at several sizes: the clip, the
+    sizes, frames per run, config overrides and where the upscaled clips are kept."""
+    parser.add_argument("--clip", type=Path, default=SAMPLE, help="the 640x360 clip (default: the sample)")
+    parser.add_argument("--sizes", default="640x360,1920x1080")
+    parser.add_argument("--frames", type=int, default=0, help="frames per run (0 = the whole clip)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="config override for every run (repeatable)")
+    parser.add_argument("--tmp", type=Path, default=Path(tempfile.gettempdir()) / "heightpipe-bench",
+                        help="where the upscaled clip is made and kept")
 
 
 def upscaled_clip(source: Path, width: int, height: int, out_dir: Path) -> Path:

@@ -30,7 +30,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from bench.clips import SAMPLE, upscaled_clip
+from bench.clips import add_clip_arguments, upscaled_clip
 
 MODELS = {"fp32": "", "int8": "int8"}
 """Model names of the table's columns and their ``height.model`` values."""
@@ -119,15 +119,9 @@ def table(columns: dict[str, dict], cores: int) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--clip", type=Path, default=SAMPLE, help="the 640x360 clip (default: the sample)")
-    parser.add_argument("--sizes", default="640x360,1920x1080")
+    add_clip_arguments(parser)
     parser.add_argument("--models", default="fp32,int8", help=f"of {', '.join(MODELS)}")
     parser.add_argument("--cores", type=int, default=2, help="cores the frames/s ceiling assumes")
-    parser.add_argument("--frames", type=int, default=0, help="frames per run (0 = the whole clip)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="config override for every run (repeatable)")
-    parser.add_argument("--tmp", type=Path, default=Path(tempfile.gettempdir()) / "heightpipe-bench",
-                        help="where the upscaled clip is made and kept")
     args = parser.parse_args()
 
     args.tmp.mkdir(parents=True, exist_ok=True)

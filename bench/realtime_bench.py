@@ -21,7 +21,7 @@ import resource
 import tempfile
 from pathlib import Path
 
-from bench.clips import SAMPLE, upscaled_clip
+from bench.clips import add_clip_arguments, upscaled_clip
 
 STAGE_ORDER = ("undistortion", "ground", "height", "matching", "objects", "geometry", "tracking",
                "rerun", "mcap", "csv")
@@ -84,16 +84,10 @@ def _row(size: str, cameras: int, mode: str, model: str, load: float, runs: list
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--clip", type=Path, default=SAMPLE, help="the 640x360 clip (default: the sample)")
-    parser.add_argument("--sizes", default="640x360,1920x1080")
+    add_clip_arguments(parser)
     parser.add_argument("--cameras", default="1,2")
     parser.add_argument("--modes", default="sequential,overlapped")
     parser.add_argument("--int8", default="", metavar="MODEL", help="also measure this (INT8) ONNX model")
-    parser.add_argument("--frames", type=int, default=0, help="frames per run (0 = the whole clip)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="config override for every run (repeatable)")
-    parser.add_argument("--tmp", type=Path, default=Path(tempfile.gettempdir()) / "heightpipe-bench",
-                        help="where the upscaled clip is made and kept")
     args = parser.parse_args()
 
     args.tmp.mkdir(parents=True, exist_ok=True)
