@@ -39,7 +39,10 @@ by the exact full-resolution ground, 8 cm (cut by a half-resolution ground thres
 held-out cameras). The gate is ``1 - depth * sigmoid(sharpness * ground_logit + shift)``, three
 learnt scalars, ``depth`` starting at 0 (open): the first trained network's ground logit was too
 weak to cut with (movers' median P(not ground) 0.56), and gating by it at once put people 73 cm
-off (26 ungated), so the gate starts as a no-op and the offset loss teaches it and the ground.
+off (26 ungated), so the gate starts as a no-op. It did not open itself (depth 0.012 after 2,000
+steps: closing it costs at once on mover pixels and pays on the ground beside them only once the
+field has un-blurred), so the committed run had it set shut (depth 1, sharpness 4) at 80,000
+images, when its ground logit had learnt the movers (heightnet/README.md).
 
 Two trunks of equal width, chosen by measurement (``heightnet/README.md``): ``plain`` (3x3
 convolution, BatchNorm, ReLU, twice per level) and ``depthwise`` (MobileNetV2 inverted
@@ -158,8 +161,8 @@ class Refinement(nn.Module):
 
 class OffsetGate(nn.Module):
     """``1 - depth * sigmoid(sharpness * ground_logit + shift)``: with ``depth`` 0 it is open
-    everywhere, so a grown network starts exactly as the one it grew from; training deepens it
-    where the ground logit can be trusted."""
+    everywhere, so a grown network starts exactly as the one it grew from; all three scalars
+    train with the rest."""
 
     def __init__(self):
         super().__init__()
