@@ -231,9 +231,7 @@ def _nadir_errors(V: np.ndarray | None, truth: np.ndarray) -> tuple[float, float
 def compare(net, sequences, width: int, height: int, frames: int = 2, min_pixels: int = 20) -> dict:
     """Per variant: median object-top |error| (cm) per group and median camera errors; the nadir
     fits' errors and the offset-direction slope."""
-    from heightnet.contact_data import CLASS_GROUPS
-    from heightnet.contact_eval import MAX_HEIGHT_M, predict
-    from synth.dataset import CLASS_NAMES
+    from heightnet.contact_eval import MAX_HEIGHT_M, frame_labels, labelled_objects, predict, top_error
 
     tops: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     errors: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
@@ -264,22 +262,15 @@ def compare(net, sequences, width: int, height: int, frames: int = 2, min_pixels
             both = (length >= DIRECTION_MIN_PX) & np.isfinite(exact_length) & (exact_length >= DIRECTION_MIN_PX)
             angles_pred.append(np.degrees(np.arctan2(offsets[..., 0], offsets[..., 1]))[both])
             angles_true.append(np.degrees(np.arctan2(exact_t[..., 0], exact_t[..., 1]))[both])
-            truth = cv2.resize(np.asarray(seq.height_m[t], np.float32), (width, height),
-                               interpolation=cv2.INTER_NEAREST_EXACT)
-            instance = cv2.resize(np.asarray(seq.instance[t]), (width, height), interpolation=cv2.INTER_NEAREST_EXACT)
-            semantic = cv2.resize(np.asarray(seq.semantic[t]), (width, height), interpolation=cv2.INTER_NEAREST_EXACT)
+            truth, instance, semantic = frame_labels(seq, t, width, height)
             preds = {name: np.clip(heights_from_offsets(camera, snapped(camera, offsets) if "snapped" in name
                                                         else offsets), 0, MAX_HEIGHT_M)
                      for name, camera in cameras.items()}
-            for obj in np.unique(instance[instance > 0]):
-                pixels = (instance == obj) & np.isfinite(truth)
-                cls = CLASS_NAMES[np.bincount(semantic[pixels]).argmax()] if pixels.any() else ""
-                group = CLASS_GROUPS.get(cls)
-                if group is None or pixels.sum() < min_pixels:
+            for group, pixels in labelled_objects(truth, instance, semantic):
+                if pixels.sum() < min_pixels:
                     continue
-                top = float(truth[pixels].max())
                 for name, pred in preds.items():
-                    tops[name][group].append(abs(float(np.percentile(pred[pixels], 98)) - top))
+                    tops[name][group].append(top_error(pred, truth, pixels))
     table = {}
     for name in errors:
         row = {f"top_{g}_cm": float(np.median(tops[name][g]) * 100) if tops[name][g] else float("nan")

@@ -110,29 +110,18 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
                 truths = window_boxes(np.asarray(seq.instance[t]), np.asarray(seq.semantic[t]),
                                       width / src_w, height / src_h, False, width)
                 _match_detections(found, truths, found_true, detections_matched)
-            truth = cv2.resize(np.asarray(seq.height_m[t], np.float32), (width, height),
-                               interpolation=cv2.INTER_NEAREST_EXACT)
-            instance = cv2.resize(np.asarray(seq.instance[t]), (width, height),
-                                  interpolation=cv2.INTER_NEAREST_EXACT)
-            semantic = cv2.resize(np.asarray(seq.semantic[t]), (width, height),
-                                  interpolation=cv2.INTER_NEAREST_EXACT)
+            truth, instance, semantic = frame_labels(seq, t, width, height)
             pred = np.clip(heights_from_offsets(true_camera, offsets), 0, MAX_HEIGHT_M)
             pred_heads = np.clip(heights_from_offsets(head_camera, offsets), 0, MAX_HEIGHT_M)
             mover = (instance > 0) & np.isfinite(truth) & (truth > 0.1)
             big = np.zeros_like(mover)
-            for obj in np.unique(instance[instance > 0]):
-                pixels = (instance == obj) & np.isfinite(truth)
-                cls = CLASS_NAMES[np.bincount(semantic[pixels]).argmax()] if pixels.any() else ""
-                group = CLASS_GROUPS.get(cls)
-                if group is None:
-                    continue
+            for group, pixels in labelled_objects(truth, instance, semantic):
                 if group == BIG:
                     big |= pixels
                 if pixels.sum() < min_pixels:
                     continue
-                top = float(truth[pixels].max())
-                tops[group].append(abs(float(np.percentile(pred[pixels], 98)) - top))
-                tops_heads[group].append(abs(float(np.percentile(pred_heads[pixels], 98)) - top))
+                tops[group].append(top_error(pred, truth, pixels))
+                tops_heads[group].append(top_error(pred_heads, truth, pixels))
             sq_all[row].append((pred - truth)[mover] ** 2)
             sq[row].append((pred - truth)[mover & ~big] ** 2)
             sq_heads[row].append((pred_heads - truth)[mover & ~big] ** 2)
@@ -159,6 +148,31 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
     if detections_matched:
         scores.detection_precision = float(np.mean(detections_matched))
     return scores
+
+
+def frame_labels(seq: ContactSequence, t: int, width: int, height: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame ``t``'s true heights, instance ids and classes at the input size (nearest)."""
+    def nearest(array: np.ndarray) -> np.ndarray:
+        return cv2.resize(array, (width, height), interpolation=cv2.INTER_NEAREST_EXACT)
+
+    return (nearest(np.asarray(seq.height_m[t], np.float32)), nearest(np.asarray(seq.instance[t])),
+            nearest(np.asarray(seq.semantic[t])))
+
+
+def labelled_objects(truth: np.ndarray, instance: np.ndarray, semantic: np.ndarray):
+    """(class group, pixels) of every mover whose class is scored (``CLASS_GROUPS``)."""
+    for obj in np.unique(instance[instance > 0]):
+        pixels = (instance == obj) & np.isfinite(truth)
+        cls = CLASS_NAMES[np.bincount(semantic[pixels]).argmax()] if pixels.any() else ""
+        group = CLASS_GROUPS.get(cls)
+        if group is not None:
+            yield group, pixels
+
+
+def top_error(pred: np.ndarray, truth: np.ndarray, pixels: np.ndarray) -> float:
+    """|98th percentile of the decoded heights on the object's pixels - its highest true height| (m)."""
+    return abs(float(np.percentile(pred[pixels], 98)) - float(truth[pixels].max()))
 
 
 def _horizon(camera: np.ndarray) -> float:

@@ -210,9 +210,9 @@ class ObjectTracker:
             track.age += 1
 
         claimants = [t for t in self.tracks if t.confirmed and t.misses <= CONSTANTS.merge_max_misses]
-        detections = split_by_predictions(detections, [t.motion.box for t in claimants],
-                                          [t.cls for t in claimants])
-        detections = join_fragments(detections, [t.motion.box for t in claimants], [t.cls for t in claimants])
+        boxes, classes = [t.motion.box for t in claimants], [t.cls for t in claimants]
+        detections = split_by_predictions(detections, boxes, classes)
+        detections = join_fragments(detections, boxes, classes)
         cost, allowed = self._association_cost(detections, matches)
         result = assign(cost, allowed)
         matched = list(result.matches)
