@@ -402,6 +402,9 @@ class TrainV2Config:
     gate: bool = True
     """Offsets cut by a learnt gate on the full-resolution ground logit, so that the half-resolution
     offset head can predict a smooth field instead of thin outlines (heightnet/contact_model.py)."""
+    position: bool = True
+    """Input channels saying where each pixel lies in its source frame (crops included), so that
+    offsets can lean towards the vertical vanishing point (heightnet/contact_model.py)."""
     crop_probability: float = 0.5
     """Share of samples that are native-resolution windows around a mover (else whole frames)."""
     max_matches: int = 64

@@ -136,6 +136,18 @@ def camera_targets(camera: PinholeCamera, image_height: int) -> np.ndarray:
     return np.array([pitch, roll, math.log(abs(camera.K[1, 1]) / image_height)], np.float32)
 
 
+def position_window(x0: int, y0: int, w: int, h: int, frame_width: int, frame_height: int,
+                    flip: bool) -> np.ndarray:
+    """The window's place in its source frame for ``contact_model.position_channels``: x start,
+    x span, y start, y span, with the frame running from -1 to 1 each way. A flipped sample is a
+    whole mirrored scene, so its x runs across the mirrored frame (the window's right edge first)."""
+    span_x, span_y = 2 * w / frame_width, 2 * h / frame_height
+    start_x = 2 * x0 / frame_width - 1
+    if flip:
+        start_x = -(start_x + span_x)
+    return np.array([start_x, span_x, 2 * y0 / frame_height - 1, span_y], np.float32)
+
+
 # ----------------------------------------------------------------------------- samples
 
 @dataclass
@@ -191,8 +203,8 @@ class ContactPairDataset:
         """image 2x3xHxW, offsets 2x2xHxW (NaN = no label), height 2x1xHxW metres (NaN = no
         label), ground 2x1xHxW, instance 2x1xHxW int64, K/R (3x3) and C (3) of the window's
         camera, camera_target (3) with camera_valid, matches Kx4 with match_valid, and
-        camera_channels 2x2xHxW when enabled, and with detection det_centre 2x3xhxw, det_box
-        2x4xhxw, det_box_mask 2x1xhxw at 1/4 of the input."""
+        camera_channels 2x2xHxW when enabled, window 2x4 (``position_window``), and with
+        detection det_centre 2x3xhxw, det_box 2x4xhxw, det_box_mask 2x1xhxw at 1/4 of the input."""
         s, t = self.index[item]
         seq = self.sequences[s]
         rng = np.random.default_rng([self.seed, self.epoch, item])
@@ -231,7 +243,8 @@ class ContactPairDataset:
                   "ground": np.stack(grounds), "instance": np.stack(instances),
                   "K": camera.K.astype(np.float32), "R": camera.R.astype(np.float32),
                   "C": camera.C.astype(np.float32), "camera_target": camera_targets(camera, H),
-                  "camera_valid": np.bool_(not cropped), "matches": padded, "match_valid": valid}
+                  "camera_valid": np.bool_(not cropped), "matches": padded, "match_valid": valid,
+                  "window": np.stack([position_window(x0, y0, w, h, seq.rgb.shape[2], seq.rgb.shape[1], flip)] * 2)}
         if self.sampling.detection:
             sample.update({f"det_{key}": np.stack(value) for key, value in detection.items()})
         if self.sampling.camera_channels:

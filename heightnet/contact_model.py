@@ -48,6 +48,17 @@ Two trunks of equal width, chosen by measurement (``heightnet/README.md``): ``pl
 convolution, BatchNorm, ReLU, twice per level) and ``depthwise`` (MobileNetV2 inverted
 residuals, as the v1 light model). ``camera_channels`` > 0 adds per-pixel camera-embedding
 input channels (CAM-Convs, Facil et al. CVPR 2019), computed from a known camera.
+
+``position`` adds two input channels: where each input pixel lies in its source frame, -1 to 1
+across the frame's width and height (CoordConv, Liu et al. NeurIPS 2018). A pixel's
+ground-contact point lies on the line to the vertical vanishing point, so offsets lean by the
+pixel's position in the frame: the committed network's offsets did not lean (du against the
+true lean, slope 0.03 on held-out cameras) and its object tops came out where the lean matters,
+at the frame's sides. Convolutions cannot see where they are, and training crops hide it
+further; these channels say it, crop and flip included (``position_window``). At run time the
+whole frame is the window, so the exported model's inputs stay the image alone. The new
+channels' first-convolution weights start at zero, so a grown network starts as the one it grew
+from.
 """
 
 from __future__ import annotations
@@ -71,6 +82,10 @@ DETECTION_STRIDE = 4
 BOX_UNIT_PX = 16.0
 # Initial centre probability (CenterNet's prior): the heatmap starts almost empty, as it mostly is.
 CENTRE_PRIOR = 0.1
+# Position input channels (x, y in the source frame) and the window of a whole frame in their
+# units: x = x_start + x_span * (column + 0.5) / width, likewise y.
+POSITION_CHANNELS = 2
+WHOLE_FRAME_WINDOW = (-1.0, 2.0, -1.0, 2.0)
 
 
 @dataclass(frozen=True)
@@ -82,25 +97,27 @@ class ContactArchitecture:
     detection: bool = False                    # centre heatmaps and boxes at 1/4
     refine: int = 0                            # channels of the full-resolution refinement (0 = none)
     gate: bool = False                         # offsets cut by a gate on the ground logit
+    position: bool = False                     # source-frame coordinate input channels
 
     def to_dict(self) -> dict:
         return {"trunk": self.trunk, "widths": list(self.widths), "camera_channels": self.camera_channels,
                 "context": list(self.context), "detection": self.detection, "refine": self.refine,
-                "gate": self.gate}
+                "gate": self.gate, "position": self.position}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ContactArchitecture":
         return cls(d["trunk"], tuple(d["widths"]), int(d["camera_channels"]),
                    tuple(d.get("context", ())), bool(d.get("detection", False)), int(d.get("refine", 0)),
-                   bool(d.get("gate", False)))
+                   bool(d.get("gate", False)), bool(d.get("position", False)))
 
     def grows_from(self, old: "ContactArchitecture") -> bool:
         """True if this network is ``old`` plus new parts only (context blocks, a detection
-        head, a refinement, the gate) — parts that start as no-ops, so ``old``'s weights carry over."""
+        head, a refinement, the gate, the position channels) — parts that start as no-ops, so
+        ``old``'s weights carry over."""
         same_core = (self.trunk, self.widths, self.camera_channels) == (old.trunk, old.widths, old.camera_channels)
         return (same_core and self.context[:len(old.context)] == old.context
                 and (self.detection or not old.detection) and old.refine in (0, self.refine)
-                and (self.gate or not old.gate)
+                and (self.gate or not old.gate) and (self.position or not old.position)
                 and self != old)
 
 
@@ -195,6 +212,20 @@ class DetectionHead(nn.Module):
         return self.centre(y), box
 
 
+def position_channels(image: torch.Tensor, window: torch.Tensor | None = None) -> torch.Tensor:
+    """B x 2 x H x W: each input pixel's x and y in its source frame (-1 to 1 across it), from the
+    window's (x_start, x_span, y_start, y_span) in those units; None = the whole frame."""
+    batch, _, height, width = image.shape
+    if window is None:
+        window = image.new_tensor(WHOLE_FRAME_WINDOW).expand(batch, 4)
+    fx = (torch.arange(width, dtype=image.dtype, device=image.device) + 0.5) / width
+    fy = (torch.arange(height, dtype=image.dtype, device=image.device) + 0.5) / height
+    gx = window[:, 0:1] + window[:, 1:2] * fx     # B x W
+    gy = window[:, 2:3] + window[:, 3:4] * fy     # B x H
+    return torch.stack([gx[:, None, :].expand(batch, height, width),
+                        gy[:, :, None].expand(batch, height, width)], 1)
+
+
 def level(trunk: str, cin: int, cout: int, stride: int) -> nn.Sequential:
     if trunk == "plain":
         return nn.Sequential(conv_bn_relu(cin, cout, stride), conv_bn_relu(cout, cout))
@@ -214,7 +245,7 @@ class ContactNet(nn.Module):
         super().__init__()
         self.arch = arch
         w = arch.widths
-        cin = 3 + arch.camera_channels
+        cin = 3 + arch.camera_channels + (POSITION_CHANNELS if arch.position else 0)
         strides = (2, 2, 2, 2)
         self.encoder = nn.ModuleList()
         prev = cin
@@ -235,8 +266,13 @@ class ContactNet(nn.Module):
         nn.init.zeros_(self.offset_head.weight)
         nn.init.zeros_(self.offset_head.bias)
 
-    def forward(self, image: torch.Tensor, camera_channels: torch.Tensor | None = None):
+    def forward(self, image: torch.Tensor, camera_channels: torch.Tensor | None = None,
+                window: torch.Tensor | None = None):
+        """``window`` (B x 4, ``position_window``) says where each image lies in its source frame;
+        None = the whole frame, as at run time."""
         x = image if camera_channels is None else torch.cat([image, camera_channels], 1)
+        if self.arch.position:
+            x = torch.cat([x, position_channels(image, window)], 1)
         skips = []
         for block in self.encoder:
             x = block(x)

@@ -39,12 +39,14 @@ LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "
 WARMUP_STEPS = 200
 # Modules a grown network may add to a state (contact_model.ContactArchitecture.grows_from).
 GROWN_PARTS = ("context.", "detection_head.", "refinement.", "offset_gate.")
+# The first convolution of a network grown with input channels (the position channels).
+FIRST_CONVOLUTION = ("encoder.0.0.0.weight", "encoder.0.0.body.0.weight")
 
 
 def architecture_of(config: TrainV2Config) -> ContactArchitecture:
     return ContactArchitecture(config.trunk, tuple(config.widths), 2 if config.camera_channels else 0,
                                tuple(config.context), config.detection, config.refine,
-                               config.gate)
+                               config.gate, config.position)
 
 
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
@@ -104,7 +106,8 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             for group in optimiser.param_groups:
                 group["lr"] = learning_rate(step, config, warmup_from)
             channels = batch["camera_channels"].flatten(0, 1) if "camera_channels" in batch else None
-            offsets, ground, camera, *detection = net(batch["image"].flatten(0, 1), channels)
+            offsets, ground, camera, *detection = net(batch["image"].flatten(0, 1), channels,
+                                                      batch["window"].flatten(0, 1))
             losses = contact_loss(offsets, ground, camera, batch, loss_weights, tuple(detection) or None)
             optimiser.zero_grad(set_to_none=True)
             losses["total"].backward()
@@ -199,6 +202,8 @@ def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
     for module, weights in ((net, state["model"]), (ema, state.get("ema", state["model"]))):
         if module is None:
             continue
+        if grown:
+            weights = _widen_first_convolution(weights, module.state_dict())
         missing, unexpected = module.load_state_dict(weights, strict=not grown)
         if unexpected or any(not key.startswith(GROWN_PARTS) for key in missing):
             raise ValueError(f"cannot grow the network of {path}: missing {missing}, unexpected {unexpected}")
@@ -216,6 +221,22 @@ def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
                 s["exp_avg_sq"] = s["exp_avg_sq"].float() ** 2
         optimiser.load_state_dict(opt)
     return step, images, int(state.get("warmup_from", 0))
+
+
+def _widen_first_convolution(weights: dict[str, torch.Tensor], wanted: dict[str, torch.Tensor]
+                             ) -> dict[str, torch.Tensor]:
+    """A state's weights with its first convolution given zero weights for the input channels
+    the grown network adds after the old ones: the new inputs start unseen."""
+    weights = dict(weights)
+    for key in FIRST_CONVOLUTION:
+        if key in weights and key in wanted and weights[key].shape != wanted[key].shape:
+            old, new = weights[key], wanted[key]
+            if old.shape[0] != new.shape[0] or old.shape[2:] != new.shape[2:] or old.shape[1] > new.shape[1]:
+                raise ValueError(f"cannot grow {key} from {tuple(old.shape)} to {tuple(new.shape)}")
+            widened = torch.zeros_like(new)
+            widened[:, :old.shape[1]] = old
+            weights[key] = widened
+    return weights
 
 
 def load_network(path: Path) -> ContactNet:

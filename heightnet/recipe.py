@@ -20,15 +20,21 @@ import sys
 from pathlib import Path
 
 # The recipe's arms were measured on the first network (no context blocks, no detection head).
-FIRST_NETWORK = {"context": [], "detection": False, "refine": 0, "gate": False, "crop_probability": 0.0}
+FIRST_NETWORK = {"context": [], "detection": False, "refine": 0, "gate": False, "position": False,
+                 "crop_probability": 0.0}
 ARMS = {
     "base": FIRST_NETWORK,
     "depthwise": {**FIRST_NETWORK, "trunk": "depthwise"},
     "crops": {**FIRST_NETWORK, "crop_probability": 0.5},
     "camconv": {**FIRST_NETWORK, "camera_channels": True},
-    "grown": {"context": [2, 4, 8], "detection": True, "refine": 0, "gate": False, "crop_probability": 0.5},
-    "refined": {"context": [2, 4, 8], "detection": True, "refine": 8, "gate": False, "crop_probability": 0.5},
-    "gated": {"context": [2, 4, 8], "detection": True, "refine": 8, "gate": True, "crop_probability": 0.5},
+    "grown": {"context": [2, 4, 8], "detection": True, "refine": 0, "gate": False, "position": False,
+              "crop_probability": 0.5},
+    "refined": {"context": [2, 4, 8], "detection": True, "refine": 8, "gate": False, "position": False,
+                "crop_probability": 0.5},
+    "gated": {"context": [2, 4, 8], "detection": True, "refine": 8, "gate": True, "position": False,
+              "crop_probability": 0.5},
+    "positioned": {"context": [2, 4, 8], "detection": True, "refine": 8, "gate": True, "position": True,
+                   "crop_probability": 0.5},
 }
 COLUMNS = [("top_person_cm", "people"), ("top_cyclist_cm", "cyclists"), ("top_car_van_cm", "cars/vans"),
            ("top_truck_bus_cm", "trucks/buses"), ("rmse_cm", "mover RMSE w/o trucks"),

@@ -1,11 +1,14 @@
-"""HeightNet v2's network: the offset gate (heightnet/contact_model.py)."""
+"""HeightNet v2's network: the offset gate and the position channels (heightnet/contact_model.py)."""
 
 import dataclasses
 
+import numpy as np
+import pytest
 import torch
 import torch.nn.functional as F
 
-from heightnet.contact_model import ContactArchitecture, ContactNet, OffsetGate
+from heightnet.contact_data import position_window
+from heightnet.contact_model import ContactArchitecture, ContactNet, OffsetGate, position_channels
 
 
 def test_the_gate_starts_open_so_a_gated_network_equals_the_ungated_one():
@@ -46,3 +49,26 @@ def test_the_gate_lets_half_resolution_offsets_reach_a_thin_objects_full_value()
     ground logit's outline, from its open start."""
     assert fitted_error(None) > 3.0
     assert fitted_error(OffsetGate()) < 0.5
+
+
+@pytest.mark.parametrize("x0, y0, w, h, flip", [(0, 0, 640, 480, False), (0, 0, 640, 480, True),
+                                                (100, 40, 320, 240, False), (100, 40, 320, 240, True)])
+def test_position_channels_say_where_each_input_pixel_lies_in_its_source_frame(x0, y0, w, h, flip):
+    """Input pixel (row i, column j) of a window resized to 32 x 24 shows the source frame
+    (640 x 480) at the window's point ((j + 0.5) / 32, (i + 0.5) / 24), mirrored with the frame
+    when flipped: the channels give that point from -1 to 1 across the (mirrored) frame."""
+    window = torch.from_numpy(position_window(x0, y0, w, h, 640, 480, flip))[None]
+    channels = position_channels(torch.zeros(1, 3, 24, 32), window)[0].numpy()
+    j, i = np.meshgrid(np.arange(32), np.arange(24))
+    column = (j + 0.5) / 32 * w
+    source_x = x0 + (w - column if flip else column)
+    source_y = y0 + (i + 0.5) / 24 * h
+    x = 2 * source_x / 640 - 1
+    np.testing.assert_allclose(channels[0], -x if flip else x, atol=1e-6)
+    np.testing.assert_allclose(channels[1], 2 * source_y / 480 - 1, atol=1e-6)
+
+
+def test_the_whole_frame_is_the_default_window():
+    image = torch.zeros(2, 3, 24, 32)
+    whole = torch.from_numpy(position_window(0, 0, 640, 480, 640, 480, False))[None].expand(2, 4)
+    assert torch.equal(position_channels(image), position_channels(image, whole))

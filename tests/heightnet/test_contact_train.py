@@ -143,12 +143,13 @@ def test_export_matches_pytorch_and_says_what_it_outputs(contact_sequences, tmp_
 
 
 def test_a_grown_network_starts_as_the_state_it_grew_from(contact_sequences, tmp_path):
-    """Context blocks, the detection head, the refinement and the gate start as no-ops: resuming
-    a smaller network's state with them gives the same offsets, then trains on, with the warm-up
-    restarted and the logs widened."""
-    small = small_config(tmp_path / "run", context=[], detection=False, refine=0, gate=False)
+    """Context blocks, the detection head, the refinement, the gate and the position channels
+    start as no-ops: resuming a smaller network's state with them gives the same offsets, then
+    trains on, with the warm-up restarted and the logs widened."""
+    small = small_config(tmp_path / "run", context=[], detection=False, refine=0, gate=False, position=False)
     before = train_contact(small, contact_sequences, contact_sequences, progress=False, max_steps=2)
-    grown_config = small_config(tmp_path / "run", context=[2, 4], detection=True, refine=4, gate=True)
+    grown_config = small_config(tmp_path / "run", context=[2, 4], detection=True, refine=4, gate=True,
+                                position=True)
     net = ContactNet(architecture_of(grown_config))
     step, images, warmup_from = load_state(tmp_path / "run" / "checkpoint.pt", net, None, grown_config)
     assert (step, warmup_from) == (2, 2)
@@ -157,7 +158,9 @@ def test_a_grown_network_starts_as_the_state_it_grew_from(contact_sequences, tmp
     x = torch.randn(1, 3, 64, 64)
     with torch.no_grad():
         old, new = before["net"](x)[0], net(x)[0]
+        cropped = net(x, None, torch.tensor([[0.2, 0.5, -0.4, 0.5]]))[0]
     assert torch.allclose(old, new, atol=1e-5)
+    assert torch.allclose(old, cropped, atol=1e-5)
     after = train_contact(grown_config, contact_sequences, contact_sequences, resume=True, progress=False,
                           max_steps=2)
     assert after["step"] == 4
