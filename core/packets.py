@@ -118,9 +118,11 @@ class NetworkDetections:
 # ``height_source`` names. A stage may add a channel of any other name; the tracker fuses it as a
 # measurement of its own (its own bias on each object) with no edit anywhere else.
 NETWORK = "network"
-"""Object extraction's reading of the height map (the network's height)."""
+"""Object extraction's reading of the height map (the network's height); as a ``cls_source``, the
+class the network's detection head gave the box."""
 GEOMETRY = "geometry"
-"""Foot and top points through the calibrated camera (``stages.geometry``)."""
+"""Foot and top points through the calibrated camera (``stages.geometry``); as a ``cls_source``,
+the class that stage gave from metric height and width."""
 BOX = "box"
 """A vehicle's outline fitted with a box on the ground (``stages.vehicle_geometry``)."""
 

@@ -56,10 +56,12 @@ def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
 
 
 def learning_rate(step: int, config: TrainV2Config, warmup_from: int = 0) -> float:
-    """Linear warm-up, then constant: an open-ended run that accumulates over days has no end
-    to decay towards (lower ``lr`` in the config when the curve flattens). A network grown from a
-    state warms up again from the step it grew at (its optimiser moments start afresh)."""
-    return config.lr * min(1.0, (step - warmup_from + 1) / WARMUP_STEPS)
+    """Linear warm-up, then constant, times ``lr_drop_factor`` for each of ``lr_drops`` passed:
+    an open-ended run that accumulates over days has no end to decay towards, so it steps down
+    where its held-out curve has flattened. A network grown from a state warms up again from the
+    step it grew at (its optimiser moments start afresh)."""
+    drops = sum(1 for at in config.lr_drops if step >= at)
+    return config.lr * config.lr_drop_factor ** drops * min(1.0, (step - warmup_from + 1) / WARMUP_STEPS)
 
 
 def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
@@ -81,6 +83,8 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
         if not resume:
             raise FileExistsError(f"{checkpoint_path} exists: resume it or choose another output folder")
         step, images, warmup_from = load_state(checkpoint_path, net, optimiser, config, ema)
+        for name in ("log.csv", "curve.csv"):   # rows logged after the checkpoint are logged again
+            _drop_rows_after(run_dir / name, step)
     (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
 
     sampling = ContactSampling(crop_probability=config.crop_probability,
@@ -255,6 +259,22 @@ def _mover_rmse_cm(losses: dict[str, torch.Tensor], batch: dict[str, torch.Tenso
         return float("nan")
     truth = torch.nan_to_num(batch["height"].flatten(0, 1))
     return float(((losses["decoded"] - truth)[movers] ** 2).mean().sqrt() * 100)
+
+
+def _drop_rows_after(path: Path, step: int) -> None:
+    """Remove the rows of a log past ``step``: a run stopped between checkpoints logged steps
+    that the resumed run will take, and log, again."""
+    if not path.is_file():
+        return
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        fields, rows = reader.fieldnames, list(reader)
+    kept = [row for row in rows if int(row["step"]) <= step]
+    if fields and len(kept) < len(rows):
+        with path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fields)
+            writer.writeheader()
+            writer.writerows(kept)
 
 
 class _CsvLog:

@@ -58,7 +58,6 @@ class FeatureMatcher:
         self.lk_params = dict(winSize=(config.lk_window, config.lk_window), maxLevel=config.lk_levels,
                               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
         self._prev_gray: np.ndarray | None = None
-        self._prev_pyramid: tuple | None = None
         self._prev_keypoints: list[cv2.KeyPoint] = []
         self._prev_descriptors: np.ndarray | None = None
 

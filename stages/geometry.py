@@ -135,11 +135,11 @@ class GeometryMeasurer:
             if foot_ok[i] and np.all(np.isfinite(ground[i])):
                 detection.ground_xy_m = (float(ground[i, 0]), float(ground[i, 1]))
             if (whole[i] and np.isfinite(heights[i]) and np.isfinite(widths[i]) and heights[i] > 0
-                    and detection.cls_source != "network"):
+                    and detection.cls_source != NETWORK):
                 # The network's height classed people it reads at half their height as "other";
                 # the calibrated camera measures both height and width in metres. A class from the
                 # network's detection head is the network's to decide: it saw the object.
-                detection.classify(metric_class(float(heights[i]), float(widths[i])), "geometry")
+                detection.classify(metric_class(float(heights[i]), float(widths[i])), GEOMETRY)
             height = heights[i]
             if (not foot_ok[i] and np.isfinite(height) and 0.0 < height < camera.height_m
                     and not widths[i] >= CONSTANTS.vehicle_min_width_m):
@@ -155,7 +155,7 @@ class GeometryMeasurer:
             scale_error = height * self.camera_height_std_m / camera.height_m
             detection.add_height(GEOMETRY, Measurement(
                 float(height), float(np.sqrt(noise[i] ** 2 + shape_error ** 2 + scale_error ** 2)),
-                source="geometry", bias_m=float(noise[i])))
+                source=GEOMETRY, bias_m=float(noise[i])))
         if has_distortion(camera):
             return   # outlines are in raw pixels; the vehicle geometry needs undistorted ones
         for i, detection in enumerate(detections):

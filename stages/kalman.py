@@ -175,7 +175,7 @@ class HeightFilter:
     CHANNEL_BIAS = {NETWORK: 1, GEOMETRY: 2, BOX: 3}
     """State index of the shipped channels' biases; other channels' follow as they come."""
 
-    def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = "network",
+    def __init__(self, height_m: float, std_m: float, process_noise_m: float, channel: str = NETWORK,
                  bias_share: float = 0.0, geometry_bias_factor: float = 0.0, bias_std_m: float | None = None):
         kf = KalmanFilter(dim_x=4, dim_z=1)
         kf.x = np.array([[height_m], [0.0], [0.0], [0.0]])
@@ -245,12 +245,12 @@ class HeightFilter:
     def predict(self) -> None:
         self.kf.predict()
 
-    def expected_std_m(self, channel: str = "network") -> float:
+    def expected_std_m(self, channel: str = NETWORK) -> float:
         """Std of what the state says this channel reads (height plus the channel's bias)."""
         row = self._row(channel)
         return float(np.sqrt((row @ self.kf.P @ row.T)[0, 0]))
 
-    def normalized_residual(self, height_m: float, std_m: float, channel: str = "network") -> float:
+    def normalized_residual(self, height_m: float, std_m: float, channel: str = NETWORK) -> float:
         """How many innovation standard deviations a measurement lies from the state."""
         row = self._row(channel)
         expected = float((row @ self.kf.x)[0, 0])
@@ -259,7 +259,7 @@ class HeightFilter:
             variance += (self.geometry_bias_factor * std_m) ** 2
         return abs(height_m - expected) / float(np.sqrt(variance))
 
-    def update(self, height_m: float, std_m: float, channel: str = "network",
+    def update(self, height_m: float, std_m: float, channel: str = NETWORK,
                bias_std_m: float | None = None) -> None:
         """One measurement; ``bias_std_m``: its per-object systematic part (default: all of ``std_m``)."""
         self._start_bias(channel, std_m if bias_std_m is None else bias_std_m)
@@ -312,7 +312,7 @@ class FilterFactory:
     def create_motion_filter(self, box: Box) -> MotionFilter:
         return MotionFilter(box)
 
-    def create_height_filter(self, height_m: float, std_m: float, channel: str = "network",
+    def create_height_filter(self, height_m: float, std_m: float, channel: str = NETWORK,
                              bias_std_m: float | None = None) -> HeightFilter:
         return HeightFilter(height_m, std_m, self.height_process_noise_m, channel, self.network_bias_share,
                             self.geometry_bias_factor, bias_std_m)

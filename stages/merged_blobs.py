@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from core.packets import Detection
+from core.packets import NETWORK, Detection
 from stages.association import intersection_matrix
 
 
@@ -72,7 +72,7 @@ def split_by_predictions(detections: list[Detection], predictions: list[tuple[fl
     for detection in detections:
         inside = np.flatnonzero(_predictions_inside(detection.box, boxes))
         pieces = None
-        if (len(inside) >= 2 and detection.mask is not None and detection.cls_source != "network"
+        if (len(inside) >= 2 and detection.mask is not None and detection.cls_source != NETWORK
                 and _side_by_side(boxes[inside])
                 and any(classes[i] not in CONSTANTS.fragment_classes for i in inside)):
             pieces = _cut(detection, boxes[inside], [classes[i] for i in inside])

@@ -114,7 +114,7 @@ def network_objects(found: NetworkDetections | None, config: ObjectsConfig, heig
             continue
         detection = _measure_box(clipped, (x0, y0, x1, y1), own, height_map, edge, config)
         detection.score = float(score)
-        detection.classify(cls, "network")
+        detection.classify(cls, NETWORK)
         detections.append(detection)
     return detections
 

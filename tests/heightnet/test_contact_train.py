@@ -17,7 +17,7 @@ from heightnet.contact_data import ContactPairDataset, ContactSampling, build_co
 from heightnet.contact_eval import evaluate
 from heightnet.contact_export import export_contact
 from core.config import TrainV2Config
-from heightnet.contact_train import architecture_of, load_state, train_contact
+from heightnet.contact_train import architecture_of, learning_rate, load_state, train_contact
 from heightnet.contact_model import ContactNet
 
 
@@ -73,6 +73,20 @@ def test_resumed_training_equals_an_uninterrupted_run(contact_sequences, tmp_pat
     assert any(moved)      # the average lags the last step
     with pytest.raises(FileExistsError):
         train_contact(small_config(tmp_path / "whole"), contact_sequences, progress=False)
+
+
+def test_resume_logs_each_step_once_after_a_stop_between_checkpoints(contact_sequences, tmp_path):
+    config = small_config(tmp_path / "run")
+    train_contact(config, contact_sequences, contact_sequences[:1], progress=False, max_steps=3)
+    # A call's end checkpoints, so stand for a run killed at step 3 after its checkpoint at 2 by
+    # putting a 2-step run's state under the 3-step logs.
+    train_contact(small_config(tmp_path / "two"), contact_sequences, progress=False, max_steps=2)
+    (tmp_path / "two" / "checkpoint.pt").replace(tmp_path / "run" / "checkpoint.pt")
+    train_contact(config, contact_sequences, contact_sequences[:1], progress=False, resume=True)
+    steps = [line.split(",")[0] for line in (tmp_path / "run" / "log.csv").read_text().splitlines()[1:]]
+    curve = [line.split(",")[0] for line in (tmp_path / "run" / "curve.csv").read_text().splitlines()[1:]]
+    assert steps == ["1", "2", "3", "4"]
+    assert curve == ["2", "4"]
 
 
 def test_resume_refuses_another_architecture(contact_sequences, tmp_path):
@@ -229,3 +243,10 @@ def test_heightpipe_export_writes_a_v2_model_and_says_so(contact_sequences, tmp_
     assert out.is_file() and "HeightNet v2" in capsys.readouterr().out
     assert main(["export", "--checkpoint", str(tmp_path / "none.pt"), "--out", str(out)]) == 2
     assert "no HeightNet v2 state" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("step, expected", [(0, 1e-3 / 200), (199, 1e-3), (999, 1e-3),
+                                            (1000, 3e-4), (4999, 3e-4), (5000, 9e-5)])
+def test_learning_rate_warms_up_then_steps_down_at_the_drops(step, expected):
+    config = TrainV2Config(lr=1e-3, lr_drops=[1000, 5000], lr_drop_factor=0.3)
+    assert learning_rate(step, config) == pytest.approx(expected)
