@@ -381,10 +381,11 @@ class TrainV2Config:
     """Pairs of consecutive frames per step (2x images)."""
     lr: float = 1e-3
     """AdamW learning rate after a 200-step warm-up, constant until the first of ``lr_drops``."""
-    lr_drops: list[int] = field(default_factory=list)
+    lr_drops: list[int] = field(default_factory=lambda: [44750, 53000])
     """Steps at which the learning rate is multiplied by ``lr_drop_factor``: an open-ended run has
     no end to decay towards, so it drops where its held-out curve flattened (kept in the config,
-    not edited into ``lr``, so the run stays a function of its config and step)."""
+    not edited into ``lr``, so the run stays a function of its config and step). The defaults
+    are where the committed run's curve went flat."""
     lr_drop_factor: float = 0.3
     weight_decay: float = 1e-4
     ema_decay: float = 0.999
