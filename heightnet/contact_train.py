@@ -266,15 +266,25 @@ def _drop_rows_after(path: Path, step: int) -> None:
     that the resumed run will take, and log, again."""
     if not path.is_file():
         return
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        fields, rows = reader.fieldnames, list(reader)
+    fields, rows = _read_csv(path)
     kept = [row for row in rows if int(row["step"]) <= step]
     if fields and len(kept) < len(rows):
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fields)
-            writer.writeheader()
-            writer.writerows(kept)
+        _write_csv(path, fields, kept)
+
+
+def _read_csv(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        rows = list(reader)
+        return list(reader.fieldnames or []), rows
+
+
+def _write_csv(path: Path, fields: list[str], rows: list[dict[str, str]]) -> None:
+    """Rewrites the whole file: header, then ``rows`` (empty in the fields a row lacks)."""
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fields, restval="")
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 class _CsvLog:
@@ -290,15 +300,10 @@ class _CsvLog:
         if self.file is None:
             fields = self.fields or list(row)
             if self.path.is_file() and self.path.stat().st_size > 0:
-                with self.path.open(newline="") as f:
-                    old_rows = list(csv.DictReader(f))
-                    old_fields = list(old_rows[0]) if old_rows else []
+                old_fields, old_rows = _read_csv(self.path)
                 if old_fields and old_fields != fields:
                     fields = old_fields + [k for k in fields if k not in old_fields]
-                    with self.path.open("w", newline="") as f:
-                        writer = csv.DictWriter(f, fields)
-                        writer.writeheader()
-                        writer.writerows(old_rows)
+                    _write_csv(self.path, fields, old_rows)
             fresh = not self.path.is_file() or self.path.stat().st_size == 0
             self.file = self.path.open("a", newline="")
             self.writer = csv.DictWriter(self.file, fields, restval="")
