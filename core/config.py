@@ -207,6 +207,11 @@ class OutputConfig:
     """Write PREFIX.objects.csv: one row per confirmed track (the table to hand on)."""
     ground_overlay: bool = False
     """Tint the ground plane in the rerun frame view (its layer can be toggled there either way)."""
+    rrd_index: str = "auto"
+    """Write rerun's index (the .rrd footer: fast seeking in long recordings) "on", "off", or
+    "auto": for files, not for live streams. The index is kept in memory until the run ends, ~1.4
+    kB per chunk (~2 MB per minute of 640x360 video), so an endless stream's process would grow
+    without bound."""
     jpeg_quality: int = 75
     """JPEG quality of the frames stored in the recordings (75: MCAP under 2 GB per hour of the 640x360 sample)."""
     mcap_chunk_size: int = 1048576

@@ -53,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     # errors say what went wrong, so keep theirs quiet unless the user asks for them.
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    # rerun warns that an .rrd without its index seeks slowly; output.rrd_index chose that (a
+    # live stream's run would otherwise grow without bound), so the warning says nothing new.
+    os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Iterable, Iterator
+from typing import TYPE_CHECKING, Iterable, Iterator
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from core.config import Config
 from core.errors import ConfigError
 from core.packets import CameraInfo, Frame, FramePacket
 from core.stage import PrimedStage, Stage
+
+if TYPE_CHECKING:
+    from stages.heightnet_model import HeightNetModel
 
 
 @dataclass
@@ -61,8 +64,43 @@ class StageChain:
         close_all([stage for _, stage in self.stages])
 
 
+def load_height_model(config: Config) -> HeightNetModel:
+    """The configured network, checked against ``[objects]``, and run once on a blank image.
+
+    ONNX Runtime plans its memory on the first run: doing it here, before a live stream is
+    opened, keeps it out of the time in which the stream's frames pile up unread.
+    """
+    from stages.heightnet_model import HeightNetModel
+    from stages.network_objects import check_classes, min_score
+
+    model = HeightNetModel(config.height.model, config.height.threads, min_score(config.objects))
+    if config.objects.source == "network":
+        if not model.info.detection:
+            raise ConfigError(f"objects.source = 'network' needs a height model with a detection head "
+                              f"(a v2 export trained with detection = true); {model.path} has none")
+        check_classes(config.objects, model.info.detection_classes, str(model.path))
+    model.run(np.zeros((model.info.input_height, model.info.input_width, 3), np.uint8))
+    return model
+
+
+def import_stages() -> None:
+    """Import every stage module ``build_stage_chain`` may use (~0.3 s) without building one.
+
+    The runner does this before it opens a live stream, whose frames pile up from then on.
+    """
+    import stages.calibration  # noqa: F401
+    import stages.feature_matching  # noqa: F401
+    import stages.geometry  # noqa: F401
+    import stages.ground_segmentation  # noqa: F401
+    import stages.height_inference  # noqa: F401
+    import stages.object_extraction  # noqa: F401
+    import stages.tracking  # noqa: F401
+    import stages.undistortion  # noqa: F401
+
+
 def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None = None,
-                      geometry: bool = True, assumed_camera_ok: bool = False) -> StageChain:
+                      geometry: bool = True, assumed_camera_ok: bool = False,
+                      model: HeightNetModel | None = None) -> StageChain:
     """The stages for this camera and configuration.
 
     Parameters
@@ -81,6 +119,10 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
         no height given (``heightpipe calibrate``, which needs only what stands above the
         ground); otherwise such a model without a camera is a ConfigError.
 
+    model : HeightNetModel, optional
+        The network from ``load_height_model`` when the caller loaded it already (the runner
+        does, before it opens the source); loaded here otherwise.
+
     ``objects.source = "network"`` needs a model with a detection head (a ConfigError names the
     model otherwise); a ``heights`` stand-in gives the objects only the network detections it
     puts in ``packet.network_detections`` (none for the generator's true maps).
@@ -94,15 +136,8 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
     if heights is None:
         from stages.ground_segmentation import GroundSegmenter
         from stages.height_inference import HeightEstimator
-        from stages.heightnet_model import HeightNetModel
-        from stages.network_objects import check_classes, min_score
 
-        model = HeightNetModel(config.height.model, config.height.threads, min_score(config.objects))
-        if config.objects.source == "network":
-            if not model.info.detection:
-                raise ConfigError(f"objects.source = 'network' needs a height model with a detection head "
-                                  f"(a v2 export trained with detection = true); {model.path} has none")
-            check_classes(config.objects, model.info.detection_classes, str(model.path))
+        model = model or load_height_model(config)
         height_stages = [("ground", GroundSegmenter(config.ground, model)),
                          ("height", HeightEstimator(model, camera, assumed_camera_ok))]
     else:

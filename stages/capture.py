@@ -273,6 +273,15 @@ class StreamSource(FrameSource):
         if self.capture is None:
             raise SourceError(f"cannot open stream {self.description} after "
                               f"{config.connect_attempts} attempts")
+        # The frame size (the camera model needs it before the run) is only sure once a frame
+        # has come: read the first one now and hand it out first.
+        ok, first = self.capture.read()
+        if not ok or first is None:
+            self.capture.release()
+            raise SourceError(f"stream {self.description} opened but sent no frame within "
+                              f"{config.read_timeout_s:g} s")
+        self._first: np.ndarray | None = first
+        self.size = (first.shape[1], first.shape[0])
 
     def _connect(self, attempts: int) -> cv2.VideoCapture | None:
         delay = self.config.backoff_s
@@ -295,15 +304,16 @@ class StreamSource(FrameSource):
         offset_s = 0.0  # stream clocks restart after a reconnect: keep time increasing
         last_time = 0.0
         while True:
-            ok, image = self.capture.read()
+            if self._first is not None:
+                ok, image, self._first = True, self._first, None
+            else:
+                ok, image = self.capture.read()
             if ok and image is not None:
                 msec = self.capture.get(cv2.CAP_PROP_POS_MSEC)
                 stream_time = msec / 1000.0 if msec > 0 else None
                 time_s = (offset_s + stream_time) if stream_time is not None else time.monotonic() - start_wall
                 time_s = max(time_s, last_time)
                 last_time = time_s
-                if self.size is None:
-                    self.size = (image.shape[1], image.shape[0])
                 yield index, time_s, SKIPPED if self._skip(index) else image
                 index += 1
                 continue

@@ -238,14 +238,29 @@ def open_recording(recording_name: str) -> rr.RecordingStream:
     minutes of looped sample video went 444 -> 578 MB, the growth native (Python's traced memory
     flat) and gone with the rerun output off or without the per-track height series (the batcher
     keeps state per entity path it has seen; cf. rerun issue #12623). Unbatched, the 30-minute
-    run grows less than half as much (401 -> 459 MB from minute 5 to 30: still not flat) and the
-    sample's .rrd is smaller (6.9 against 8.2 MB; the images dominate, and the batcher's chunks
-    cost more than they save).
+    run grows less than half as much (401 -> 459 MB from minute 5 to 30) and the sample's .rrd
+    is smaller (6.9 against 8.2 MB; the images dominate, and the batcher's chunks cost more
+    than they save). The rest of the growth is the file sink's index (see ``writes_index``):
+    without it the same run stays at 383 -> 388 MB.
     """
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4(),
                              batcher_config=rr.ChunkBatcherConfig.NEVER())
     rec.send_recording_name(recording_name)
     return rec
+
+
+def writes_index(rrd_index: str, live: bool) -> bool:
+    """Whether the .rrd gets rerun's index (footer) for ``output.rrd_index`` and this source.
+
+    The file sink keeps one manifest row per chunk in memory until it writes the footer at the
+    end (~1.4 kB each, a chunk per entity and flush): about 2 MB per minute of 640x360 video.
+    A file's run ends, and its .rrd then seeks fast in the viewer; a live stream may not end,
+    so by default its .rrd has no index and the process stays flat (the viewer reads such a
+    file from the start, as it did every .rrd before rerun 0.31).
+    """
+    if rrd_index == "auto":
+        return not live
+    return rrd_index == "on"
 
 
 def close_recording(rec: rr.RecordingStream) -> None:
@@ -264,7 +279,8 @@ class RerunSink:
     """
 
     def __init__(self, path: Path, mode: str, config: OutputConfig, recording_name: str,
-                 encoder: FrameEncoder | None = None, web_url: str | None = None):
+                 encoder: FrameEncoder | None = None, web_url: str | None = None,
+                 live: bool = False):
         if mode not in RERUN_MODES:
             raise ConfigError(f"output.rerun must be one of {', '.join(RERUN_MODES)} or off, "
                               f"got {mode!r}")
@@ -275,22 +291,23 @@ class RerunSink:
         self.path = Path(path)
         self.encoder = encoder or FrameEncoder.from_config(config)
         self.rec = open_recording(recording_name)
+        self.indexed = writes_index(config.rrd_index, live)
         blueprint = heightpipe_blueprint()
         try:
             if mode == "save":
-                self.rec.save(self.path, default_blueprint=blueprint)
+                self.rec.save(self.path, default_blueprint=blueprint, write_footer=self.indexed)
             elif mode == "spawn":
                 self.rec.spawn(connect=False, memory_limit=CONSTANTS.viewer_memory_limit)
-                self.rec.set_sinks(rr.GrpcSink(), rr.FileSink(self.path), default_blueprint=blueprint)
+                self.rec.set_sinks(rr.GrpcSink(), self._file_sink(), default_blueprint=blueprint)
             elif mode == "web":
                 if web_url is None:
                     raise ConfigError("output.rerun=web needs the web viewer server (started by "
                                       "`heightpipe run`); use 'save' or 'serve' here")
-                self.rec.set_sinks(rr.GrpcSink(web_url), rr.FileSink(self.path),
+                self.rec.set_sinks(rr.GrpcSink(web_url), self._file_sink(),
                                    default_blueprint=blueprint)
             else:
                 server = rr.GrpcServerSink()  # all interfaces, port 9876: viewable from elsewhere
-                self.rec.set_sinks(server, rr.FileSink(self.path), default_blueprint=blueprint)
+                self.rec.set_sinks(server, self._file_sink(), default_blueprint=blueprint)
                 uri = server.uri.replace("0.0.0.0", "127.0.0.1")
                 rr.serve_web_viewer(web_port=WEB_VIEWER_PORT, connect_to=uri, open_browser=False)
                 print(f"rerun: web viewer at http://127.0.0.1:{WEB_VIEWER_PORT}/?url="
@@ -302,6 +319,9 @@ class RerunSink:
         self.flush_interval_s = config.flush_interval_s
         self._last_flush_s: float | None = None
         self._closed = False
+
+    def _file_sink(self) -> rr.FileSink:
+        return rr.FileSink(self.path, write_footer=self.indexed)
 
     def write(self, packet: FramePacket) -> None:
         log = self.logger

@@ -27,6 +27,9 @@ MATCH_KIND_KEY = "kind"
 """Metadata key of each /camera/matches PointsAnnotation in MCAP: 'object' or 'background'."""
 
 
+RRD_INDEX_CHOICES = ("auto", "on", "off")
+
+
 def check_output_config(config: OutputConfig) -> None:
     if not 1 <= config.jpeg_quality <= 100:
         raise ConfigError(f"output.jpeg_quality must be 1..100, got {config.jpeg_quality}")
@@ -36,6 +39,9 @@ def check_output_config(config: OutputConfig) -> None:
         raise ConfigError(f"output.height_map_every must be >= 1, got {config.height_map_every}")
     if config.mcap_chunk_size < 1024:
         raise ConfigError(f"output.mcap_chunk_size must be >= 1024 bytes, got {config.mcap_chunk_size}")
+    if config.rrd_index not in RRD_INDEX_CHOICES:
+        raise ConfigError(f"output.rrd_index must be one of {', '.join(RRD_INDEX_CHOICES)}, "
+                          f"got {config.rrd_index!r}")
     if config.flush_interval_s < 0:
         raise ConfigError(f"output.flush_interval_s must be >= 0, got {config.flush_interval_s}")
 

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import http.server
 import json
 import signal
+import socketserver
+import threading
+import time
 from pathlib import Path
 
 import cv2
@@ -213,3 +217,38 @@ def make_tiny_contact_model(path: Path, offsets: np.ndarray, camera: np.ndarray,
     helper.set_model_props(model, meta)
     onnx.save(model, str(path))
     return path
+
+
+def mjpeg_server(frames_per_connection: list[int], fps: float | None = None):
+    """An IP-camera-like MJPEG stream of 64x48 frames that drops the k-th connection after
+    ``frames_per_connection[k]`` frames (the last count repeats), sent as fast as the socket
+    takes them or paced at ``fps``. Returns (server, connections).
+    """
+    connections = []
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+        def do_GET(self):
+            connections.append(1)
+            count = frames_per_connection[min(len(connections), len(frames_per_connection)) - 1]
+            self.send_response(200)
+            self.send_header("Content-Type", "multipart/x-mixed-replace;boundary=frame")
+            self.end_headers()
+            for i in range(count):
+                jpg = cv2.imencode(".jpg", np.full((48, 64, 3), i * 8 % 255, np.uint8))[1].tobytes()
+                try:
+                    self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n"
+                                     % len(jpg) + jpg + b"\r\n")
+                except (BrokenPipeError, ConnectionResetError):
+                    return
+                if fps:
+                    time.sleep(1.0 / fps)
+
+    class Server(socketserver.ThreadingMixIn, http.server.HTTPServer):
+        daemon_threads = True
+
+    server = Server(("127.0.0.1", 0), Handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server, connections

@@ -1,6 +1,7 @@
 """`heightpipe run` as a user meets it: outputs, bad input, and stopping mid-run."""
 
 import csv
+import re
 import signal
 import subprocess
 import sys
@@ -9,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from media import (REPO_ROOT, default_sigint, make_tiny_height_model, write_moving_box_video,
+from media import (REPO_ROOT, default_sigint, make_tiny_height_model, mjpeg_server, write_moving_box_video,
                    write_truncated_avi)
 
 CSV_HEADER = ["frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score", "height_m", "height_std_m",
@@ -141,6 +142,23 @@ def test_unreachable_stream(model_flag):
     result = heightpipe("run", "rtsp://127.0.0.1:9/none", "--set", "capture.connect_attempts=2",
                         "--set", "capture.backoff_s=0.01", *model_flag)
     assert_clean_error(result, "cannot open stream rtsp://127.0.0.1:9/none after 2 attempts")
+
+
+def test_live_stream_runs_end_to_end_and_writes_every_output(tmp_path, model_flag):
+    server, _ = mjpeg_server([40], fps=25)
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
+        result = heightpipe("run", url, "--out", tmp_path / "cam", "--no-progress", *model_flag,
+                            "--set", "capture.reconnect_attempts=0", "--set", "capture.read_timeout_s=2")
+    finally:
+        server.shutdown()
+    assert result.returncode == 0, result.stderr
+    processed = int(re.search(r"processed (\d+) frames", result.stderr).group(1))
+    dropped = re.search(r"(\d+) frames dropped while the pipeline was busy", result.stderr)
+    assert processed + (int(dropped.group(1)) if dropped else 0) == 40, result.stderr
+    assert processed >= 20, "a paced 64x48 stream is easy to keep up with"
+    for suffix in (".rrd", ".mcap", ".tracks.csv"):
+        assert (tmp_path / f"cam{suffix}").stat().st_size > 0
 
 
 def test_unknown_config_key(box_video):

@@ -1,12 +1,8 @@
-import http.server
-import socketserver
-import threading
-
 import cv2
 import numpy as np
 import pytest
 
-from media import SHARED_REAL, write_truncated_avi
+from media import SHARED_REAL, mjpeg_server, write_truncated_avi
 from core.config import CaptureConfig
 from core.errors import SourceError
 from stages.capture import StreamSource, evenly_spaced, open_source
@@ -111,43 +107,42 @@ def test_unreachable_stream_retries_with_backoff_then_fails():
     assert delays == [0.5, 1.0, 2.0]
 
 
+class _OpensButSendsNothing(_NeverOpens):
+    def isOpened(self):
+        return True
+
+    def read(self):
+        return False, None
+
+    def get(self, prop):
+        return 0.0
+
+
+def test_stream_that_opens_but_sends_no_frame_is_one_clear_error():
+    with pytest.raises(SourceError, match="opened but sent no frame within 2 s"):
+        StreamSource("rtsp://cam/1", CaptureConfig(read_timeout_s=2), opener=lambda url: _OpensButSendsNothing())
+
+
+def test_stream_knows_its_frame_size_before_the_first_frame_is_asked_for():
+    server, _ = mjpeg_server([5])
+    try:
+        source = open_source(f"http://127.0.0.1:{server.server_address[1]}/video.mjpg",
+                             CaptureConfig(reconnect_attempts=0, read_timeout_s=2))
+        assert source.size == (64, 48)
+        frames = list(source.frames())
+    finally:
+        server.shutdown()
+    assert len(frames) == 5, "the frame read to learn the size is handed out, not lost"
+    assert frames[0].image.shape == (48, 64, 3)
+
+
 def test_unreachable_real_rtsp_url_fails_fast():
     with pytest.raises(SourceError, match="cannot open stream"):
         open_source("rtsp://127.0.0.1:9/none", CaptureConfig(connect_attempts=2, backoff_s=0.01))
 
 
-def _mjpeg_server(frames_per_connection):
-    """An IP-camera-like MJPEG stream that drops the connection after N frames."""
-    connections = []
-
-    class Handler(http.server.BaseHTTPRequestHandler):
-        def log_message(self, *args):
-            pass
-
-        def do_GET(self):
-            connections.append(1)
-            count = frames_per_connection[min(len(connections), len(frames_per_connection)) - 1]
-            self.send_response(200)
-            self.send_header("Content-Type", "multipart/x-mixed-replace;boundary=frame")
-            self.end_headers()
-            for i in range(count):
-                jpg = cv2.imencode(".jpg", np.full((48, 64, 3), i * 8 % 255, np.uint8))[1].tobytes()
-                try:
-                    self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n"
-                                     % len(jpg) + jpg + b"\r\n")
-                except (BrokenPipeError, ConnectionResetError):
-                    return
-
-    class Server(socketserver.ThreadingMixIn, http.server.HTTPServer):
-        daemon_threads = True
-
-    server = Server(("127.0.0.1", 0), Handler)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    return server, connections
-
-
 def test_stream_that_drops_mid_run_reconnects_and_keeps_recording():
-    server, connections = _mjpeg_server([20, 30])
+    server, connections = mjpeg_server([20, 30])
     try:
         url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
         source = open_source(url, CaptureConfig(reconnect_attempts=1, backoff_s=0.01, read_timeout_s=2))

@@ -17,7 +17,7 @@ from core.config import OutputConfig
 from core.errors import ConfigError, HeightpipeError
 from core.packets import FramePacket
 from stages.height_rules import RuleEvent
-from stages.rerun_sink import RerunSink
+from stages.rerun_sink import RerunSink, writes_index
 from stages.sink_common import QUALITY_RGB, FrameEncoder
 
 from media import make_sink_packet, rrd_rows
@@ -148,6 +148,43 @@ def test_bad_mode_and_config_are_config_errors(tmp_path):
         RerunSink(tmp_path / "x.rrd", "save", OutputConfig(jpeg_quality=0), "x")
     with pytest.raises(ConfigError, match="height_map_every"):
         RerunSink(tmp_path / "x.rrd", "save", OutputConfig(height_map_every=0), "x")
+    with pytest.raises(ConfigError, match="rrd_index"):
+        RerunSink(tmp_path / "x.rrd", "save", OutputConfig(rrd_index="yes"), "x")
+
+
+@pytest.mark.parametrize("rrd_index, live, indexed", [
+    ("auto", False, True),   # a file's run ends: its .rrd gets the index
+    ("auto", True, False),   # a live stream may not: no index, memory stays flat
+    ("on", True, True),
+    ("off", False, False),
+])
+def test_rrd_index_is_written_for_files_not_live_streams_unless_asked(rrd_index, live, indexed):
+    assert writes_index(rrd_index, live) is indexed
+
+
+def test_rrd_without_index_reads_back_the_same_frames(tmp_path):
+    paths = {}
+    for live in (False, True):
+        paths[live] = tmp_path / f"live_{live}.rrd"
+        sink = RerunSink(paths[live], "save", OutputConfig(height_map_every=1), "x", live=live)
+        assert sink.indexed is (not live)
+        for index in range(6):
+            sink.write(make_packet(index))
+        sink.close()
+    rerun = shutil.which("rerun") or "rerun"
+    merged = tmp_path / "indexed_later.rrd"
+    with merged.open("wb") as out:  # the README's way to add the index to a live run's .rrd
+        assert subprocess.run([rerun, "rrd", "merge", str(paths[True])], stdout=out,
+                              stderr=subprocess.DEVNULL, timeout=60).returncode == 0
+    for path, verifies in ((paths[True], False), (merged, True)):
+        verify = subprocess.run([rerun, "rrd", "verify", str(path)], capture_output=True, text=True,
+                                timeout=60)
+        assert (verify.returncode == 0) is verifies, verify.stderr
+    indexed, unindexed = rrd_rows(paths[False]), rrd_rows(paths[True])
+    assert unindexed.keys() == indexed.keys()
+    assert [frame for frame, _ in unindexed["/camera/image"]] == list(range(6))
+    assert unindexed["/tracks/1/height"] == indexed["/tracks/1/height"]
+    assert paths[True].stat().st_size < paths[False].stat().st_size, "the index is the footer's bytes"
 
 
 def test_spawn_without_display_is_a_clear_error(tmp_path, monkeypatch):
