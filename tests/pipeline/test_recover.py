@@ -13,7 +13,7 @@ import pytest
 from pipeline import cli
 from pipeline.recover import ORIGINAL_SUFFIX, mcap_is_complete, rrd_is_complete
 
-from media import REPO_ROOT, write_moving_box_video, write_unfinished_recording
+from media import REPO_ROOT, make_sink_packet, write_moving_box_video, write_unfinished_recording
 
 
 def default_reader_images(path: Path) -> list[int]:
@@ -42,6 +42,24 @@ def test_recover_unfinished_mcap_keeps_every_complete_chunk(tmp_path, capsys):
     # a second recover leaves the now valid file alone
     assert cli.main(["recover", str(path)]) == 0
     assert f"complete, {frames} frames; nothing to recover" in capsys.readouterr().err
+
+
+def test_recover_adds_the_index_to_a_live_streams_rrd(tmp_path, capsys):
+    """A live stream's .rrd is written without rerun's index (output.rrd_index = "auto"); the
+    README says `heightpipe recover` adds it afterwards."""
+    from core.config import OutputConfig
+    from stages.rerun_sink import RerunSink
+
+    path = tmp_path / "cam.rrd"
+    sink = RerunSink(path, "save", OutputConfig(), "cam", live=True)
+    for index in range(6):
+        sink.write(make_sink_packet(index))
+    sink.close()
+    assert not rrd_is_complete(path)
+
+    assert cli.main(["recover", str(path)]) == 0
+    assert "recovered 6 frames" in capsys.readouterr().err
+    assert rrd_is_complete(path)
 
 
 def test_csv_row_cut_mid_write_is_dropped(tmp_path, capsys):
