@@ -31,6 +31,9 @@ class CaptureConstants:
     max_consecutive_decode_failures: int = 25
     """A video read failing this many times in a row is taken as its end (truncated or corrupt
     tail): about a second of video."""
+    aspect_tolerance: float = 0.02
+    """Frames whose width / height differs from the run's by less than this share are the same
+    view at another resolution (1280x720 for 1920x1080; 704x576 is not 768x576)."""
 
 
 CONSTANTS = CaptureConstants()
@@ -55,6 +58,11 @@ class CaptureStats:
     """Frame count the container header claims, where it has one (not always right)."""
     reached_end: bool = False
     """The source ran out (rather than the run stopping early)."""
+    rescaled: int = 0
+    """Frames that came at another resolution of the run's aspect ratio (a camera that changed
+    streams at a reconnect): scaled to the run's size, then processed as usual."""
+    wrong_shape: int = 0
+    """Frames of another aspect ratio than the run's (another view or crop): not processed."""
 
     def summary(self) -> str:
         text = f"{self.decoded} frames decoded"
@@ -66,6 +74,10 @@ class CaptureStats:
             text += f" (header claims {self.expected})"
         if self.reconnects:
             text += f", {self.reconnects} stream reconnects"
+        if self.rescaled:
+            text += f", {self.rescaled} at another resolution (scaled)"
+        if self.wrong_shape:
+            text += f", {self.wrong_shape} of another aspect ratio (not processed)"
         return "; ".join([text, *self.notes])
 
 
@@ -91,11 +103,39 @@ class FrameSource:
             self.stats.decoded += 1
             if image is SKIPPED:
                 continue
-            yield Frame(index=index, time_s=time_s, image=_ensure_bgr(image))
+            image = self.fit_to_size(_ensure_bgr(image), index)
+            if image is None:
+                continue
+            yield Frame(index=index, time_s=time_s, image=image)
             emitted += 1
             if self.config.max_frames and emitted >= self.config.max_frames:
                 return
         self.stats.reached_end = True
+
+    def fit_to_size(self, image: np.ndarray, index: int) -> np.ndarray | None:
+        """The image at the run's frame size, or None where it cannot be (counted either way).
+
+        Everything after capture (the camera model, the background model, the previous frame
+        for matching, zones in pixels) is built for the size the source opened with. A frame
+        at another resolution of the same aspect ratio is the same view (a camera that switched
+        streams at a reconnect): scaled. Another aspect ratio is another view or crop whose
+        pixels no longer map to the camera's: not processed, as a frame that failed to decode.
+        """
+        if self.size is None or image.shape[1::-1] == self.size:
+            return image
+        width, height = self.size
+        got_w, got_h = image.shape[1], image.shape[0]
+        seen = f"frame {index} was the first at {got_w}x{got_h} (the run's frames are {width}x{height})"
+        if abs(got_w * height - got_h * width) > CONSTANTS.aspect_tolerance * got_h * width:
+            if not self.stats.wrong_shape:
+                self.stats.notes.append(seen)
+            self.stats.wrong_shape += 1
+            return None
+        if not self.stats.rescaled:
+            self.stats.notes.append(seen)
+        self.stats.rescaled += 1
+        shrink = got_w > width
+        return cv2.resize(image, self.size, interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
 
     def _skip(self, index: int) -> bool:
         return index % max(1, self.config.stride) != 0

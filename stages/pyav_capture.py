@@ -148,6 +148,10 @@ class PyAVFileSource(FrameSource):
                                   count=True):
             if self._skip(frame.index):
                 continue
+            image = self.fit_to_size(frame.image, frame.index)
+            if image is None:
+                continue
+            frame.image = image
             yield frame
             emitted += 1
             if self.config.max_frames and emitted >= self.config.max_frames:

@@ -219,10 +219,12 @@ def make_tiny_contact_model(path: Path, offsets: np.ndarray, camera: np.ndarray,
     return path
 
 
-def mjpeg_server(frames_per_connection: list[int], fps: float | None = None):
-    """An IP-camera-like MJPEG stream of 64x48 frames that drops the k-th connection after
-    ``frames_per_connection[k]`` frames (the last count repeats), sent as fast as the socket
-    takes them or paced at ``fps``. Returns (server, connections).
+def mjpeg_server(frames_per_connection: list[int], fps: float | None = None,
+                 sizes_per_connection: list[tuple[int, int]] = ((64, 48),)):
+    """An IP-camera-like MJPEG stream that drops the k-th connection after
+    ``frames_per_connection[k]`` frames of ``sizes_per_connection[k]`` (width, height) pixels
+    (the last entry of each repeats), sent as fast as the socket takes them or paced at ``fps``.
+    Returns (server, connections).
     """
     connections = []
 
@@ -233,11 +235,12 @@ def mjpeg_server(frames_per_connection: list[int], fps: float | None = None):
         def do_GET(self):
             connections.append(1)
             count = frames_per_connection[min(len(connections), len(frames_per_connection)) - 1]
+            width, height = sizes_per_connection[min(len(connections), len(sizes_per_connection)) - 1]
             self.send_response(200)
             self.send_header("Content-Type", "multipart/x-mixed-replace;boundary=frame")
             self.end_headers()
             for i in range(count):
-                jpg = cv2.imencode(".jpg", np.full((48, 64, 3), i * 8 % 255, np.uint8))[1].tobytes()
+                jpg = cv2.imencode(".jpg", np.full((height, width, 3), i * 8 % 255, np.uint8))[1].tobytes()
                 try:
                     self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n"
                                      % len(jpg) + jpg + b"\r\n")

@@ -138,6 +138,26 @@ def test_truncated_video_processes_what_decodes_and_says_so(tmp_path, model_flag
     assert "header claims 40" in result.stderr
 
 
+def test_frames_of_another_aspect_ratio_are_reported_not_a_crash(tmp_path, box_video, model_flag):
+    import cv2
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    capture = cv2.VideoCapture(str(box_video))
+    for i in range(20):
+        ok, image = capture.read()
+        assert ok
+        if i >= 10:  # the camera's other stream: another crop from frame 10 on
+            image = image[:, : image.shape[0]]
+        cv2.imwrite(str(folder / f"{i:03d}.png"), image)
+    capture.release()
+    result = heightpipe("run", folder, "--out", tmp_path / "out", "--no-progress", *model_flag)
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+    assert "processed 10 frames" in result.stderr
+    assert "10 of another aspect ratio (not processed); frame 10 was the first at" in result.stderr
+
+
 def test_unreachable_stream(model_flag):
     result = heightpipe("run", "rtsp://127.0.0.1:9/none", "--set", "capture.connect_attempts=2",
                         "--set", "capture.backoff_s=0.01", *model_flag)

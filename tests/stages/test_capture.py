@@ -84,6 +84,35 @@ def test_image_folder_counts_undecodable_images(tmp_path):
     assert len(glob_frames) == 2
 
 
+def test_frames_of_another_size_are_scaled_or_left_out_by_their_aspect_ratio(tmp_path):
+    sizes = [(64, 48), (32, 24), (128, 96), (48, 48), (64, 48)]  # 4:3, 4:3, 4:3, 1:1, 4:3
+    for i, (w, h) in enumerate(sizes):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((h, w, 3), 40 * i, np.uint8))
+    source = open_source(str(tmp_path), CaptureConfig())
+    frames = list(source.frames())
+    assert [f.index for f in frames] == [0, 1, 2, 4]
+    assert {f.image.shape for f in frames} == {(48, 64, 3)}
+    assert [int(f.image.mean()) for f in frames] == [0, 40, 80, 160], "scaled, not replaced"
+    assert (source.stats.rescaled, source.stats.wrong_shape, source.stats.failed) == (2, 1, 0)
+    text = source.stats.summary()
+    assert "2 at another resolution (scaled)" in text and "1 of another aspect ratio (not processed)" in text
+    assert "frame 1 was the first at 32x24 (the run's frames are 64x48)" in text
+    assert "frame 3 was the first at 48x48" in text
+
+
+def test_a_stream_that_comes_back_at_another_resolution_is_scaled_to_the_first():
+    server, connections = mjpeg_server([10, 15], sizes_per_connection=[(64, 48), (128, 96)])
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
+        source = open_source(url, CaptureConfig(reconnect_attempts=1, backoff_s=0.01, read_timeout_s=2))
+        frames = list(source.frames())
+    finally:
+        server.shutdown()
+    assert len(connections) == 2 and source.stats.reconnects == 1
+    assert len(frames) == 25 and {f.image.shape for f in frames} == {(48, 64, 3)}
+    assert source.stats.rescaled == 15
+
+
 def test_empty_folder_and_unmatched_glob(tmp_path):
     with pytest.raises(SourceError, match="without images"):
         open_source(str(tmp_path), CaptureConfig())
