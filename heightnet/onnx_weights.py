@@ -81,6 +81,33 @@ def load_onnx_weights(net: HeightNet, path: Path) -> None:
     _check_against_onnx(net, path)
 
 
+def load_onnx_weights_shared(net: HeightNet, path: Path) -> list[str]:
+    """Loads into ``net`` what it shares with the exported model at ``path``, of an architecture
+    with more decoder levels (``light`` into ``light_half``); returns the weights left as built.
+
+    Every weight of the same name and shape is copied. The finest head ``net`` has predicts the
+    height residual (channel 0, copied) and, now that it is the last level, the ground logit
+    (channel 1): that channel keeps its fresh initialisation and is learnt by fine-tuning.
+    """
+    from heightnet.model import architecture_from_name
+
+    source = HeightNet(architecture_from_name(exported_architecture(path)), net.encoding)
+    load_onnx_weights(source, path)
+    theirs = source.state_dict()
+    state = net.state_dict()
+    fresh = []
+    for key, value in state.items():
+        if key in theirs and theirs[key].shape == value.shape:
+            state[key] = theirs[key].clone()
+        elif key in theirs and value.shape[0] > theirs[key].shape[0] == 1:  # finest head: + ground
+            state[key][:1] = theirs[key]
+            fresh.append(f"{key}[1:]")
+        else:
+            fresh.append(key)
+    net.load_state_dict(state)
+    return fresh
+
+
 def _unfold_batchnorm(state: dict, modules: dict, conv_path: str, weight: np.ndarray,
                       bias: np.ndarray | None) -> None:
     state[conv_path + ".weight"] = torch.from_numpy(weight.copy())
@@ -112,6 +139,19 @@ def _check_against_onnx(net: HeightNet, path: Path) -> None:
     worst = max(float(np.abs(a - b.numpy()).max()) for a, b in zip(expected, got))
     if worst > TOLERANCE:
         raise ModelError(f"weights read from {path} do not reproduce it (max difference {worst:.3g})")
+
+
+def exported_architecture(path: Path) -> str:
+    """The architecture an exported model was built as (its metadata; "" if it does not say)."""
+    import onnx
+
+    if not Path(path).is_file():
+        raise ModelError(f"model not found: {path}")
+    try:
+        props = onnx.load(str(path), load_external_data=False).metadata_props
+    except Exception as exc:  # protobuf raises several types for a damaged file
+        raise ModelError(f"cannot read ONNX model {path}: {exc}") from None
+    return {p.key: p.value for p in props}.get("heightpipe.architecture", "")
 
 
 def trained_steps(path: Path) -> int:

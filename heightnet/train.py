@@ -26,7 +26,8 @@ from heightnet.data import Augmentation, CachedSequence, PairDataset
 from heightnet.encoding import TARGETS
 from heightnet.losses import LossWeights, heightnet_loss
 from heightnet.model import build_model
-from heightnet.onnx_weights import freeze_batchnorm, load_onnx_weights, trained_steps
+from heightnet.onnx_weights import (exported_architecture, freeze_batchnorm, load_onnx_weights,
+                                   load_onnx_weights_shared, trained_steps)
 from core.config import TrainConfig
 from core.errors import ConfigError
 
@@ -93,7 +94,11 @@ def train(config: TrainConfig, sequences: Sequence[CachedSequence], data_hash: s
         init_steps = int(state.get("init_steps", 0))
         frozen = bool(state.get("frozen_batchnorm", False))
     elif config.init_onnx:
-        load_onnx_weights(net, Path(config.init_onnx))
+        if exported_architecture(Path(config.init_onnx)) in ("", config.architecture):
+            load_onnx_weights(net, Path(config.init_onnx))
+        else:  # a cut-down architecture starts from what it shares with the larger one
+            fresh = load_onnx_weights_shared(net, Path(config.init_onnx))
+            print(f"train: {config.architecture} from {config.init_onnx}; not in it: {', '.join(fresh)}")
         init_steps = trained_steps(Path(config.init_onnx))
     (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
 

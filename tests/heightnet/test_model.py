@@ -4,7 +4,7 @@ import torch
 from heightnet.model import build_model, count_parameters, image_pyramid_residuals
 
 
-@pytest.mark.parametrize("architecture", ["light", "paper"])
+@pytest.mark.parametrize("architecture", ["light", "light_half", "paper"])
 def test_outputs_are_full_resolution_height_and_ground(architecture):
     torch.manual_seed(0)
     net = build_model(architecture, "relative").eval()
@@ -18,6 +18,20 @@ def test_outputs_are_full_resolution_height_and_ground(architecture):
 def test_light_model_is_mobile_sized_and_paper_model_is_not():
     assert 0.3e6 < count_parameters(build_model("light", "relative")) < 1.5e6
     assert count_parameters(build_model("paper", "relative", "resnext50_32x4d")) > 20e6
+
+
+def test_light_half_is_light_without_its_full_resolution_level():
+    light, half = build_model("light", "relative"), build_model("light_half", "relative")
+    assert len(half.levels) == len(light.levels) - 1
+    theirs = {k: v.shape for k, v in light.state_dict().items()}
+    ours = {k: v.shape for k, v in half.state_dict().items() if not k.startswith("heads.2.2.")}
+    assert all(theirs[k] == shape for k, shape in ours.items()), "every other weight is light's"
+    assert half.state_dict()["heads.2.2.weight"].shape[0] == 2, "its finest head gives the ground logit too"
+    with pytest.raises(ValueError, match="decoder_levels"):
+        import dataclasses
+
+        from heightnet.model import HeightNet
+        HeightNet(dataclasses.replace(light.arch, decoder_levels=1), light.encoding)
 
 
 def test_untrained_light_model_starts_near_ground_value():

@@ -9,7 +9,7 @@ import torch
 from heightnet.checkpoint import load_checkpoint, model_from_checkpoint
 from heightnet.export import export_checkpoint, export_model
 from heightnet.model import ExportedHeightNet, build_model
-from heightnet.onnx_weights import load_onnx_weights, module_path
+from heightnet.onnx_weights import load_onnx_weights, load_onnx_weights_shared, module_path
 from heightnet.train import train
 from core.config import TrainConfig
 from core.errors import ModelError
@@ -54,6 +54,28 @@ def test_weights_from_onnx_reproduce_the_exported_network(exported):
     # Not a copy of the state dict: the encoder's BatchNorms were folded into its convolutions.
     assert not torch.allclose(rebuilt.state_dict()["encoder.stem.0.weight"],
                               original.state_dict()["encoder.stem.0.weight"])
+
+
+def test_a_cut_down_network_starts_from_what_it_shares_with_the_exported_one(exported):
+    _, path = exported
+    full = build_model("light", "relative")
+    load_onnx_weights(full, path)
+    half = build_model("light_half", "relative")
+    fresh = load_onnx_weights_shared(half, path)
+    assert fresh == ["heads.2.2.weight[1:]", "heads.2.2.bias[1:]"]
+    theirs, ours = full.state_dict(), half.state_dict()
+    for key, value in ours.items():
+        if key.startswith("heads.2.2."):
+            assert torch.equal(value[:1], theirs[key]), "the height residual channel is copied"
+        else:
+            assert torch.equal(value, theirs[key]), key
+    # Its height before any fine-tuning: the same network less the last residual, so close.
+    image = torch.rand(1, 3, 64, 96, generator=torch.Generator().manual_seed(3))
+    with torch.no_grad():
+        want = ExportedHeightNet(full).eval()(image)[0]
+        got = ExportedHeightNet(half).eval()(image)[0]
+    assert got.shape == want.shape
+    assert float((got - want).abs().mean()) < 0.25 * float(want.abs().mean()) + 1e-3
 
 
 def test_a_missing_damaged_or_foreign_file_is_a_model_error(tmp_path, exported):
