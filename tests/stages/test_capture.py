@@ -100,14 +100,19 @@ def test_frames_of_another_size_are_scaled_or_left_out_by_their_aspect_ratio(tmp
     assert "frame 3 was the first at 48x48" in text
 
 
-def test_a_stream_that_comes_back_at_another_resolution_is_scaled_to_the_first():
-    server, connections = mjpeg_server([10, 15], sizes_per_connection=[(64, 48), (128, 96)])
+def _read_with_one_reconnect(server):
+    """Every frame of ``server``'s stream, allowed one reconnect: (source, frames)."""
     try:
         url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
         source = open_source(url, CaptureConfig(reconnect_attempts=1, backoff_s=0.01, read_timeout_s=2))
-        frames = list(source.frames())
+        return source, list(source.frames())
     finally:
         server.shutdown()
+
+
+def test_a_stream_that_comes_back_at_another_resolution_is_scaled_to_the_first():
+    server, connections = mjpeg_server([10, 15], sizes_per_connection=[(64, 48), (128, 96)])
+    source, frames = _read_with_one_reconnect(server)
     assert len(connections) == 2 and source.stats.reconnects == 1
     assert len(frames) == 25 and {f.image.shape for f in frames} == {(48, 64, 3)}
     assert source.stats.rescaled == 15
@@ -172,12 +177,7 @@ def test_unreachable_real_rtsp_url_fails_fast():
 
 def test_stream_that_drops_mid_run_reconnects_and_keeps_recording():
     server, connections = mjpeg_server([20, 30])
-    try:
-        url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
-        source = open_source(url, CaptureConfig(reconnect_attempts=1, backoff_s=0.01, read_timeout_s=2))
-        frames = list(source.frames())
-    finally:
-        server.shutdown()
+    source, frames = _read_with_one_reconnect(server)
     assert len(connections) == 2
     assert source.stats.reconnects == 1
     assert len(frames) == 50
