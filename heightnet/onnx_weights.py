@@ -141,8 +141,8 @@ def _check_against_onnx(net: HeightNet, path: Path) -> None:
         raise ModelError(f"weights read from {path} do not reproduce it (max difference {worst:.3g})")
 
 
-def exported_architecture(path: Path) -> str:
-    """The architecture an exported model was built as (its metadata; "" if it does not say)."""
+def exported_metadata(path: Path) -> dict[str, str]:
+    """An exported model's metadata (the heightpipe contract's keys), without its weights."""
     import onnx
 
     if not Path(path).is_file():
@@ -151,15 +151,17 @@ def exported_architecture(path: Path) -> str:
         props = onnx.load(str(path), load_external_data=False).metadata_props
     except Exception as exc:  # protobuf raises several types for a damaged file
         raise ModelError(f"cannot read ONNX model {path}: {exc}") from None
-    return {p.key: p.value for p in props}.get("heightpipe.architecture", "")
+    return {p.key: p.value for p in props}
+
+
+def exported_architecture(path: Path) -> str:
+    """The architecture an exported model was built as (its metadata; "" if it does not say)."""
+    return exported_metadata(path).get("heightpipe.architecture", "")
 
 
 def trained_steps(path: Path) -> int:
     """The optimiser steps behind an exported model (its metadata; 0 if it does not say)."""
-    import onnx
-
-    model = onnx.load(str(path), load_external_data=False)
-    value = {p.key: p.value for p in model.metadata_props}.get("heightpipe.trained_steps", "0")
+    value = exported_metadata(path).get("heightpipe.trained_steps", "0")
     return int(value) if value.isdigit() else 0
 
 
