@@ -42,6 +42,10 @@ class CaptureConfig:
     reference: str = ""
     """A complete recording of the same camera: its codec settings salvage an MP4 cut off before
     its index was written ("" = none: such a file is an error that says so)."""
+    max_width: int = 1280
+    """Frames wider than this are processed scaled down by the smallest whole factor that makes
+    them fit (1920x1080 and 2560x1440 -> 960x540 and 1280x720; 0 = full size). Recordings show the
+    scaled frames; tracks.csv, events and image zones stay in the source's pixels."""
 
 
 @dataclass
@@ -78,7 +82,7 @@ class MatchingConfig:
     max_hamming: int = 64
     """ORB descriptor distance above which a match is rejected."""
     downscale: int = 2
-    """Match on a 1/N image (points are reported in source pixels): 4x cheaper at N=2."""
+    """Match on a 1/N image (points are reported in the frame's pixels): 4x cheaper at N=2."""
     max_width: int = 320
     """The matching image is at most this wide: larger frames are downscaled further (0 = no
     limit). 320 is the sample's matching image (640 / 2), which the window and the ORB budget
@@ -119,7 +123,8 @@ class ObjectsConfig:
     height_percentile: float = 100.0
     """Single-frame height = this percentile of the height map inside the blob (robust top)."""
     min_area_px: int = 40
-    """Above-ground blobs smaller than this (in source pixels) are ignored."""
+    """Above-ground blobs smaller than this (in pixels of the processed frame,
+    ``capture.max_width``) are ignored."""
     min_object_height_m: float = 0.5
     """Blobs whose top is lower than this are clutter, not objects."""
     max_object_height_m: float = 5.0
@@ -127,7 +132,7 @@ class ObjectsConfig:
     min_foreground_share: float = 0.4
     """Blobs less than this share foreground are clutter (rain or leaves over a static structure)."""
     min_foreground_piece_px: int = 8
-    """Foreground pieces smaller than this (source pixels) are sensor noise, dropped before blobs are grown."""
+    """Foreground pieces smaller than this (processed-frame pixels) are sensor noise, dropped before blobs are grown."""
     height_measurement_noise_m: float = 0.15
     """Base standard deviation of one frame's height measurement."""
     consistency_gain: float = 1.0

@@ -25,6 +25,18 @@ class Frame:
     damage: str = ""
     """Why this frame cannot be trusted ("" = it decoded clean): a decoder error, a corrupt flag,
     frames missing before it, or a damaged frame it is predicted from (``stages.pyav_capture``)."""
+    source_scale: tuple[float, float] = (1.0, 1.0)
+    """Source pixels per pixel of ``image`` along x and y: capture scales frames wider than
+    ``capture.max_width`` down, and the pixels users read or write (tracks.csv boxes, events,
+    image zones) stay the source's."""
+
+    def to_source(self, values: tuple[float, ...]) -> tuple[float, ...]:
+        """(x, y) or (x, y, w, h) in pixels of ``image`` as source pixels (pixel edges: pixel i
+        covers [i, i + 1), so whole-factor scaling maps a box onto the block it came from)."""
+        sx, sy = self.source_scale
+        if sx == 1.0 and sy == 1.0:
+            return tuple(values)
+        return tuple(v * (sx if i % 2 == 0 else sy) for i, v in enumerate(values))
 
 
 @dataclass

@@ -90,8 +90,22 @@ class FrameSource:
         self.config = config
         self.stats = CaptureStats()
         self.fps: float | None = None
-        self.size: tuple[int, int] | None = None
-        """(width, height) of the frames, known after opening."""
+        if config.max_width < 0:
+            raise ConfigError(f"capture.max_width must be 0 (full size) or a width in pixels, got {config.max_width}")
+        self.source_size: tuple[int, int] | None = None
+        """(width, height) of the source's frames, known after opening."""
+
+    @property
+    def size(self) -> tuple[int, int] | None:
+        """(width, height) of the frames this source hands out (``processing_size``)."""
+        return processing_size(self.source_size, self.config.max_width)
+
+    @property
+    def source_scale(self) -> tuple[float, float]:
+        """Source pixels per pixel of the frames handed out, along x and y."""
+        if self.source_size is None or self.size == self.source_size:
+            return (1.0, 1.0)
+        return (self.source_size[0] / self.size[0], self.source_size[1] / self.size[1])
 
     def frames(self) -> Iterator[Frame]:
         """Frames after stride and max_frames, counting decoded and failed ones."""
@@ -106,35 +120,50 @@ class FrameSource:
             image = self.fit_to_size(_ensure_bgr(image), index)
             if image is None:
                 continue
-            yield Frame(index=index, time_s=time_s, image=image)
+            yield Frame(index=index, time_s=time_s, image=image, source_scale=self.source_scale)
             emitted += 1
             if self.config.max_frames and emitted >= self.config.max_frames:
                 return
         self.stats.reached_end = True
 
-    def fit_to_size(self, image: np.ndarray, index: int) -> np.ndarray | None:
-        """The image at the run's frame size, or None where it cannot be (counted either way).
+    def scaling_note(self) -> str:
+        """One line for the run's summary when frames are processed scaled down ("" if not)."""
+        if self.source_size is None or self.size == self.source_size:
+            return ""
+        (sw, sh), (w, h) = self.source_size, self.size
+        return (f"{sw}x{sh} frames processed at {w}x{h} (capture.max_width = {self.config.max_width}; "
+                "tracks.csv boxes and events in the source's pixels)")
+
+    def fit_to_size(self, image: np.ndarray, index: int | None = None) -> np.ndarray | None:
+        """The image at the run's frame size, or None where it cannot be.
 
         Everything after capture (the camera model, the background model, the previous frame
-        for matching, zones in pixels) is built for the size the source opened with. A frame
-        at another resolution of the same aspect ratio is the same view (a camera that switched
-        streams at a reconnect): scaled. Another aspect ratio is another view or crop whose
-        pixels no longer map to the camera's: not processed, as a frame that failed to decode.
+        for matching, zones in pixels) is built for one frame size. The source's own frames are
+        scaled down to it when they are wider than ``capture.max_width`` (``processing_size``).
+        A frame at another resolution of the same aspect ratio is the same view (a camera that
+        switched streams at a reconnect): scaled too, and counted. Another aspect ratio is
+        another view or crop whose pixels no longer map to the camera's: not processed, as a
+        frame that failed to decode. ``index`` None: a look-ahead frame, not counted.
         """
-        if self.size is None or image.shape[1::-1] == self.size:
-            return image
-        width, height = self.size
-        got_w, got_h = image.shape[1], image.shape[0]
+        got = image.shape[1::-1]
+        if self.size is None or got == self.source_size:
+            return image if got == self.size else cv2.resize(image, self.size, interpolation=cv2.INTER_AREA)
+        width, height = self.source_size
+        got_w, got_h = got
         seen = f"frame {index} was the first at {got_w}x{got_h} (the run's frames are {width}x{height})"
         if abs(got_w * height - got_h * width) > CONSTANTS.aspect_tolerance * got_h * width:
-            if not self.stats.wrong_shape:
-                self.stats.notes.append(seen)
-            self.stats.wrong_shape += 1
+            if index is not None:
+                if not self.stats.wrong_shape:
+                    self.stats.notes.append(seen)
+                self.stats.wrong_shape += 1
             return None
-        if not self.stats.rescaled:
-            self.stats.notes.append(seen)
-        self.stats.rescaled += 1
-        shrink = got_w > width
+        if index is not None:
+            if not self.stats.rescaled:
+                self.stats.notes.append(seen)
+            self.stats.rescaled += 1
+        if got == self.size:
+            return image
+        shrink = got_w > self.size[0]
         return cv2.resize(image, self.size, interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
 
     def _skip(self, index: int) -> bool:
@@ -145,15 +174,37 @@ class FrameSource:
         raise NotImplementedError
 
     def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
-        """Up to ``count`` frames spread over the first ``span_s`` seconds, read ahead of the run.
+        """Up to ``count`` frames spread over the first ``span_s`` seconds, read ahead of the run,
+        at the run's frame size (``fit_to_size``; those of another aspect ratio left out).
 
         Only sources that can be read twice (files, image folders) have one; a live stream
         returns none and its background model starts from its first frames.
         """
+        fitted = (self.fit_to_size(_ensure_bgr(image)) for image in self._background_images(count, span_s))
+        return [image for image in fitted if image is not None]
+
+    def _background_images(self, count: int, span_s: float) -> list[np.ndarray]:
+        """The look-ahead frames as decoded (sources that can be read twice override this)."""
         return []
 
     def close(self) -> None:
         pass
+
+
+def processing_size(size: tuple[int, int] | None, max_width: int) -> tuple[int, int] | None:
+    """The frame size a run works at: ``size`` divided by the smallest whole factor that makes it
+    at most ``max_width`` wide (0: ``size`` itself).
+
+    The network sees 320x192 pixels and matching and blobs work at 320 wide, so a 1920x1080
+    frame carries nothing the measurements use that a 960x540 one lacks, while every per-pixel
+    step (maps, masks, encoding) costs four times as much. A whole factor keeps the scaling
+    exact and cheap (INTER_AREA averages whole blocks: 0.5 ms for 1920x1080 -> 960x540, 7 ms
+    to 1280x720).
+    """
+    if size is None or max_width <= 0 or size[0] <= max_width:
+        return size
+    factor = -(-size[0] // max_width)
+    return (max(1, round(size[0] / factor)), max(1, round(size[1] / factor)))
 
 
 def evenly_spaced(total: int, count: int) -> list[int]:
@@ -196,7 +247,7 @@ class VideoFileSource(FrameSource):
             self.capture.release()
             raise SourceError(f"{path} is not a readable video (no frame decodes)")
         self._first = first
-        self.size = (first.shape[1], first.shape[0])
+        self.source_size = (first.shape[1], first.shape[0])
 
     def _timestamp(self, index: int) -> float:
         """Presentation time from the container; index/fps only if it has none."""
@@ -233,7 +284,7 @@ class VideoFileSource(FrameSource):
                 return
             yield index, 0.0, FAILED
 
-    def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
+    def _background_images(self, count: int, span_s: float) -> list[np.ndarray]:
         total = self.stats.expected or 0
         if count <= 0 or total <= 0:
             return []
@@ -247,7 +298,7 @@ class VideoFileSource(FrameSource):
                 if index in wanted:
                     ok, image = capture.retrieve()
                     if ok and image is not None:
-                        images.append(_ensure_bgr(image))
+                        images.append(image)
         finally:
             capture.release()
         return images
@@ -268,7 +319,7 @@ class ImageFolderSource(FrameSource):
         first = next((cv2.imread(str(p), cv2.IMREAD_COLOR) for p in paths[:5]), None)
         if first is None:
             raise SourceError(f"{description}: the first images cannot be decoded")
-        self.size = (first.shape[1], first.shape[0])
+        self.source_size = (first.shape[1], first.shape[0])
 
     def _read(self) -> Iterator[tuple[int, float, np.ndarray]]:
         for index, path in enumerate(self.paths):
@@ -278,7 +329,7 @@ class ImageFolderSource(FrameSource):
             image = cv2.imread(str(path), cv2.IMREAD_COLOR)
             yield index, index / self.fps, FAILED if image is None else image
 
-    def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
+    def _background_images(self, count: int, span_s: float) -> list[np.ndarray]:
         images = [cv2.imread(str(self.paths[i]), cv2.IMREAD_COLOR)
                   for i in background_indices(len(self.paths), self.fps, count, span_s)]
         return [image for image in images if image is not None]
@@ -321,7 +372,7 @@ class StreamSource(FrameSource):
             raise SourceError(f"stream {self.description} opened but sent no frame within "
                               f"{config.read_timeout_s:g} s")
         self._first: np.ndarray | None = first
-        self.size = (first.shape[1], first.shape[0])
+        self.source_size = (first.shape[1], first.shape[0])
 
     def _connect(self, attempts: int) -> cv2.VideoCapture | None:
         delay = self.config.backoff_s

@@ -1,6 +1,7 @@
 """PREFIX.tracks.csv: one row per confirmed track per processed frame.
 
 Flushed after every frame, so a crash or kill keeps every frame written before it.
+Boxes are in the source's pixels (``Frame.to_source``: the run may work on scaled frames).
 ``frame_damaged`` is 1 on frames decoded with errors: their heights were not measured (the
 track's height is carried over from clean frames) and the box may be off.
 """
@@ -32,7 +33,7 @@ class TrackCsvSink:
     def write(self, packet: FramePacket) -> None:
         frame = packet.frame
         for track in confirmed(packet.tracks):
-            x, y, w, h = (round(v, 1) + 0.0 for v in track.box)  # + 0.0: no "-0.0" at the border
+            x, y, w, h = (round(v, 1) + 0.0 for v in frame.to_source(track.box))  # + 0.0: no "-0.0" at the border
             self._writer.writerow((
                 frame.index, f"{frame.time_s:.4f}", track.track_id, track.cls,
                 f"{x:.1f}", f"{y:.1f}", f"{w:.1f}", f"{h:.1f}", f"{track.score:.3f}",

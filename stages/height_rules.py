@@ -24,7 +24,7 @@ import numpy as np
 
 from core.config import RuleConfig
 from core.errors import ConfigError
-from core.packets import OBJECT_CLASSES, FramePacket, Track
+from core.packets import OBJECT_CLASSES, Frame, FramePacket, Track
 
 ZONE_FRAMES = ("image", "ground")
 EVENT_JSON_SCHEMA = {
@@ -36,7 +36,9 @@ EVENT_JSON_SCHEMA = {
         "frame": {"type": "integer"}, "time_s": {"type": "number"},
         "height_m": {"type": "number"}, "height_std_m": {"type": "number"},
         "height_source": {"type": "string"},
-        "box": {"type": "array", "items": {"type": "number"}, "description": "x, y, w, h pixels"},
+        "box": {"type": "array", "items": {"type": "number"}, "description": "x, y, w, h in source pixels"},
+        "source_scale": {"type": "array", "items": {"type": "number"},
+                         "description": "source pixels per pixel of the recorded images, x and y"},
         "ground_xy_m": {"type": ["array", "null"], "items": {"type": "number"}},
     },
 }
@@ -58,6 +60,9 @@ class RuleEvent:
     box: tuple[float, float, float, float]
     """x, y, w, h in source pixels."""
     ground_xy_m: tuple[float, float] | None
+    source_scale: tuple[float, float] = (1.0, 1.0)
+    """Source pixels per pixel of the processed (and recorded) frame: ``box`` / this is the box on
+    the recorded image."""
 
     def to_dict(self) -> dict:
         """The JSON object written to PREFIX.events.jsonl, MCAP /events and the webhook."""
@@ -66,7 +71,8 @@ class RuleEvent:
                 "height_m": round(self.height_m, 3), "height_std_m": round(self.height_std_m, 3),
                 "height_source": self.height_source, "box": [round(float(v), 1) for v in self.box],
                 "ground_xy_m": (None if self.ground_xy_m is None
-                                else [round(float(v), 3) for v in self.ground_xy_m])}
+                                else [round(float(v), 3) for v in self.ground_xy_m]),
+                "source_scale": [round(float(v), 6) for v in self.source_scale]}
 
     def text(self) -> str:
         """One line for a log: 'tall_vehicle: #12 vehicle 3.95 m ±6 cm'."""
@@ -138,7 +144,9 @@ class HeightRules:
         self._zones = [np.asarray(rule.zone, dtype=np.float64) if rule.zone else None for rule in rules]
         self._state: dict[tuple[int, int], _RunState] = {}
 
-    def condition(self, index: int, track: Track) -> bool:
+    def condition(self, index: int, track: Track, frame: Frame | None = None) -> bool:
+        """Does ``track`` meet rule ``index`` now? Image zones are in source pixels, so the foot
+        point is taken there through ``frame`` (None: the frame is the source's size)."""
         rule, zone = self.rules[index], self._zones[index]
         if rule.cls and track.cls != rule.cls:
             return False
@@ -153,7 +161,8 @@ class HeightRules:
             return True
         if rule.zone_frame == "ground":
             return track.ground_xy_m is not None and inside_polygon(track.ground_xy_m, zone)
-        return inside_polygon(foot_point(track), zone)
+        foot = foot_point(track)
+        return inside_polygon(frame.to_source(foot) if frame is not None else foot, zone)
 
     def process(self, packet: FramePacket) -> FramePacket:
         now = packet.frame.time_s
@@ -167,7 +176,7 @@ class HeightRules:
                 state = self._state.setdefault(key, _RunState())
                 if not track.updated:  # coasting: a predicted box proves nothing either way
                     continue
-                if not self.condition(index, track):
+                if not self.condition(index, track, packet.frame):
                     state.started_s, state.frames, state.fired_in_run = None, 0, False
                     continue
                 if state.started_s is None:
@@ -184,8 +193,9 @@ class HeightRules:
                 packet.events.append(RuleEvent(
                     rule=rule.name, track_id=track.track_id, cls=track.cls, frame=packet.frame.index,
                     time_s=now, height_m=track.height_m, height_std_m=track.height_std_m,
-                    height_source=track.height_source, box=tuple(float(v) for v in track.box),
-                    ground_xy_m=track.ground_xy_m))
+                    height_source=track.height_source,
+                    box=tuple(float(v) for v in packet.frame.to_source(track.box)),
+                    ground_xy_m=track.ground_xy_m, source_scale=packet.frame.source_scale))
         for key in set(self._state) - alive:  # the track is gone (or no longer confirmed)
             del self._state[key]
         return packet

@@ -11,7 +11,7 @@ on the ground mask). Without a height map the foreground alone is used; with ``b
 "none"`` the height map alone. The background model is seeded with the median of frames read
 ahead (``prime_background``), and a global brightness change (auto exposure) is divided out
 before background subtraction. The work is done on a downscaled frame (``work_width``) so the
-stage costs a few milliseconds; boxes and heights are measured back in source pixels.
+stage costs a few milliseconds; boxes and heights are measured back in the frame's pixels.
 
 Specks of sensor noise are dropped from the foreground first (at dusk they joined every walker
 into one sparse blob). Then: blobs that are mostly not foreground (rain over a facade) or taller
@@ -397,7 +397,7 @@ class ObjectExtractor:
         x, y = offset[0] + cols.min(), offset[1] + rows.min()
         w, h = cols.max() - cols.min() + 1, rows.max() - rows.min() + 1
         piece = piece[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
-        # Box back in source pixels (pixel edges, not centres).
+        # Box back in the frame's pixels (pixel edges, not centres).
         src_h, src_w = edge.shape
         x0, y0 = int(np.floor(x / scale)), int(np.floor(y / scale))
         x1 = min(src_w, int(np.ceil((x + w) / scale)))

@@ -80,8 +80,8 @@ class PyAVFileSource(FrameSource):
         """Byte ranges whose container checksum fails: their frames are damaged, decoded or not."""
         self.fps = float(self.stream.average_rate or self.stream.guessed_rate or 0) or None
         self.stats.expected = self.stream.frames or self._frames_from_duration()
-        self.size = (self.stream.codec_context.width, self.stream.codec_context.height)
-        if not all(self.size):
+        self.source_size = (self.stream.codec_context.width, self.stream.codec_context.height)
+        if not all(self.source_size):
             self.close()
             raise SourceError(f"{path} is not a readable video (its video stream has no frame size)")
 
@@ -151,7 +151,7 @@ class PyAVFileSource(FrameSource):
             image = self.fit_to_size(frame.image, frame.index)
             if image is None:
                 continue
-            frame.image = image
+            frame.image, frame.source_scale = image, self.source_scale
             yield frame
             emitted += 1
             if self.config.max_frames and emitted >= self.config.max_frames:
@@ -225,7 +225,7 @@ class PyAVFileSource(FrameSource):
                         frame.frame.image = av_frame.to_ndarray(format="bgr24")
                     yield frame.frame
 
-    def background_sample(self, count: int, span_s: float) -> list[np.ndarray]:
+    def _background_images(self, count: int, span_s: float) -> list[np.ndarray]:
         total = self.stats.expected or 0
         if count <= 0 or total <= 0:
             return []

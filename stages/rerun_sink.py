@@ -222,8 +222,11 @@ class RerunFrameLogger:
                     f"{height_text(event['height_m'], event['height_std_m'])} ({event['height_source']})")
             self.rec.log("/events", rr.TextLog(text, level=rr.TextLogLevel.WARN))
         pad = CONSTANTS.event_marker_pad_px
-        frames = [(e["box"][0] - pad, e["box"][1] - pad, e["box"][2] + 2 * pad, e["box"][3] + 2 * pad)
-                  for e in events]
+        frames = []
+        for event in events:  # the box is in source pixels, the image may be scaled down
+            sx, sy = event.get("source_scale", (1.0, 1.0))
+            x, y, w, h = event["box"]
+            frames.append((x / sx - pad, y / sy - pad, w / sx + 2 * pad, h / sy + 2 * pad))
         self.rec.log("/camera/events", rr.Boxes2D(
             array=np.array(frames, dtype=np.float32), array_format=rr.Box2DFormat.XYWH,
             colors=[EVENT_RGB] * len(events), radii=2.0, labels=[e["rule"] for e in events],

@@ -8,6 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from media import (REPO_ROOT, default_sigint, make_tiny_height_model, mjpeg_server, write_moving_box_video,
@@ -139,8 +141,6 @@ def test_truncated_video_processes_what_decodes_and_says_so(tmp_path, model_flag
 
 
 def test_frames_of_another_aspect_ratio_are_reported_not_a_crash(tmp_path, box_video, model_flag):
-    import cv2
-
     folder = tmp_path / "frames"
     folder.mkdir()
     capture = cv2.VideoCapture(str(box_video))
@@ -156,6 +156,35 @@ def test_frames_of_another_aspect_ratio_are_reported_not_a_crash(tmp_path, box_v
     assert "Traceback" not in result.stderr
     assert "processed 10 frames" in result.stderr
     assert "10 of another aspect ratio (not processed); frame 10 was the first at" in result.stderr
+
+
+def test_frames_processed_scaled_down_give_tracks_in_the_source_pixels(tmp_path, box_video, model_flag):
+    """capture.max_width: the recordings hold the smaller frames, tracks.csv the source's pixels."""
+    from mcap.reader import make_reader
+
+    def boxes(out):
+        rows = csv.DictReader(open(out.with_name(out.name + ".tracks.csv")))
+        return {int(row["frame"]): [float(row[key]) for key in "xywh"] for row in rows}
+
+    full, half = tmp_path / "full", tmp_path / "half"
+    for out, width in ((full, 0), (half, 80)):
+        result = heightpipe("run", box_video, "--out", out, "--no-progress", *model_flag,
+                            "--set", f"capture.max_width={width}")
+        assert result.returncode == 0, result.stderr
+    assert "160x120 frames processed at 80x60 (capture.max_width = 80" in result.stderr
+    full_boxes, half_boxes = boxes(full), boxes(half)
+    shared = sorted(set(full_boxes) & set(half_boxes))
+    assert len(shared) >= 20, "the walking box is tracked either way"
+    errors = np.abs(np.array([full_boxes[i] for i in shared]) - [half_boxes[i] for i in shared])
+    assert np.median(errors) <= 2.0, "source pixels: the same box, within a pixel of the half-size frame"
+    assert max(half_boxes[i][0] + half_boxes[i][2] for i in shared) > 100, "not the 80 px frame's pixels"
+    with open(half.with_name("half.mcap"), "rb") as f:
+        from mcap_protobuf.decoder import DecoderFactory
+
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        _, _, _, image = next(reader.iter_decoded_messages(topics=["/camera/image"]))
+    decoded = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_COLOR)
+    assert decoded.shape == (60, 80, 3)
 
 
 def test_unreachable_stream(model_flag):

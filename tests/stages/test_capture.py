@@ -4,8 +4,8 @@ import pytest
 
 from media import SHARED_REAL, mjpeg_server, write_truncated_avi
 from core.config import CaptureConfig
-from core.errors import SourceError
-from stages.capture import StreamSource, evenly_spaced, open_source
+from core.errors import ConfigError, SourceError
+from stages.capture import StreamSource, evenly_spaced, open_source, processing_size
 
 TRAFFIC = SHARED_REAL / "traffic_bridge" / "car_traffic_small.mp4"
 
@@ -98,6 +98,50 @@ def test_frames_of_another_size_are_scaled_or_left_out_by_their_aspect_ratio(tmp
     assert "2 at another resolution (scaled)" in text and "1 of another aspect ratio (not processed)" in text
     assert "frame 1 was the first at 32x24 (the run's frames are 64x48)" in text
     assert "frame 3 was the first at 48x48" in text
+
+
+@pytest.mark.parametrize("size, max_width, expected", [
+    ((1920, 1080), 960, (960, 540)),    # whole factor 2
+    ((1280, 720), 960, (640, 360)),     # 2, not 1.33: whole blocks are cheap and exact
+    ((3840, 2160), 960, (960, 540)),    # 4
+    ((2560, 1440), 960, (853, 480)),    # 3
+    ((960, 540), 960, (960, 540)),      # fits already
+    ((640, 360), 960, (640, 360)),
+    ((1920, 1080), 0, (1920, 1080)),    # 0: full size
+    (None, 960, None),                  # not open yet
+])
+def test_processing_size_divides_by_the_smallest_whole_factor_that_fits(size, max_width, expected):
+    assert processing_size(size, max_width) == expected
+
+
+def test_frames_wider_than_max_width_are_processed_scaled_and_say_so(tmp_path):
+    """The look-ahead too; frames of another size are fitted to the same processed size."""
+    sizes = [(128, 96), (128, 96), (256, 192), (64, 48), (96, 96)]
+    rng = np.random.default_rng(0)
+    originals = []
+    for i, (w, h) in enumerate(sizes):
+        image = (rng.random((h, w, 3)) * 255).astype(np.uint8)
+        originals.append(image)
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), image)
+    source = open_source(str(tmp_path), CaptureConfig(max_width=64))
+    assert (source.source_size, source.size, source.source_scale) == ((128, 96), (64, 48), (2.0, 2.0))
+    frames = list(source.frames())
+    assert [f.index for f in frames] == [0, 1, 2, 3]
+    assert {f.image.shape for f in frames} == {(48, 64, 3)}
+    assert {f.source_scale for f in frames} == {(2.0, 2.0)}
+    block_means = originals[0].reshape(48, 2, 64, 2, 3).mean(axis=(1, 3))
+    assert np.abs(frames[0].image - block_means).max() <= 1.0, "2x2 blocks averaged"
+    assert (source.stats.rescaled, source.stats.wrong_shape) == (2, 1), "the source's own size is not counted"
+    assert "128x96 frames processed at 64x48 (capture.max_width = 64" in source.scaling_note()
+    assert "the run's frames are 128x96" in source.stats.summary()
+    sample = source.background_sample(5, span_s=10.0)
+    assert len(sample) == 4 and {image.shape for image in sample} == {(48, 64, 3)}
+    assert open_source(str(tmp_path), CaptureConfig(max_width=0)).scaling_note() == ""
+
+
+def test_a_negative_max_width_is_a_config_error(box_video):
+    with pytest.raises(ConfigError, match="capture.max_width"):
+        open_source(str(box_video), CaptureConfig(max_width=-1))
 
 
 def _read_with_one_reconnect(server):

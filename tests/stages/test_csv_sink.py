@@ -19,6 +19,17 @@ def make_packet(index: int, tracks: list[Track], damage: str = "") -> FramePacke
                        camera=CameraInfo(64, 48), tracks=tracks)
 
 
+def test_boxes_of_a_scaled_down_frame_are_written_in_source_pixels(tmp_path):
+    path = tmp_path / "run.tracks.csv"
+    sink = TrackCsvSink(path)
+    packet = make_packet(0, [Track(7, (10.25, 20.0, 5.0, 12.5), "person", 1.7, 0.04, confirmed=True)])
+    packet.frame.source_scale = (2.0, 2.0)  # a 128x96 source processed at 64x48
+    sink.write(packet)
+    sink.close()
+    row = next(csv.DictReader(path.open()))
+    assert [row[key] for key in "xywh"] == ["20.5", "40.0", "10.0", "25.0"]
+
+
 def test_rows_are_confirmed_tracks_and_reach_disk_every_frame(tmp_path):
     path = tmp_path / "run.tracks.csv"
     sink = TrackCsvSink(path)

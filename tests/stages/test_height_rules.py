@@ -87,6 +87,22 @@ def test_each_track_and_rule_fires_on_its_own():
     assert run(rules, frames) == [(0, "tall", 1), (0, "any_vehicle", 1), (0, "any_vehicle", 2)]
 
 
+def test_image_zones_and_event_boxes_are_in_source_pixels_when_frames_are_scaled():
+    """A 1280x960 source processed at 640x480: the lane is drawn on the source's pixels."""
+    stage = HeightRules([RuleConfig(name="tall", zone=LANE)], calibrated=False)
+    fired = []
+    for index in range(3):
+        frame_packet = packet(index, [track(track_id=1, box=(75.0, 125.0, 20.0, 50.0)),
+                                      track(track_id=2, box=(160.0, 125.0, 20.0, 50.0))])
+        frame_packet.frame.source_scale = (2.0, 2.0)
+        fired += stage.process(frame_packet).events
+    # Foot points (85, 175) and (170, 175) in frame pixels are (170, 350) and (340, 350) in the
+    # source's: only the first is in the lane (and in frame pixels neither is).
+    assert [event.track_id for event in fired] == [1]
+    record = fired[0].to_dict()
+    assert record["box"] == [150.0, 250.0, 40.0, 100.0] and record["source_scale"] == [2.0, 2.0]
+
+
 def test_ground_zone_uses_the_ground_position():
     rule = RuleConfig(name="lane", zone=[[0, 0], [3.5, 0], [3.5, 50], [0, 50]], zone_frame="ground")
     assert run([rule], [[track(ground=(1.0, 20.0))]], calibrated=True)

@@ -133,7 +133,8 @@ def test_events_go_to_a_json_channel_at_their_frame(tmp_path):
     assert [log_time for log_time, _ in events] == [frame_times[2], frame_times[5]]
     assert events[0][1] == {"rule": "tall", "track_id": 1, "class": "person", "frame": 2, "time_s": 0.2,
                             "height_m": 1.72, "height_std_m": 0.04, "height_source": "fused",
-                            "box": [20.0, 10.0, 10.0, 20.0], "ground_xy_m": [1.5, 7.25]}
+                            "box": [20.0, 10.0, 10.0, 20.0], "ground_xy_m": [1.5, 7.25],
+                            "source_scale": [1.0, 1.0]}
 
 
 def test_rerun_converts_the_mcap(tmp_path):

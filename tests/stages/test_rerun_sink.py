@@ -42,8 +42,9 @@ def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
         if index == 6:
             packet.tracks[0].updated = False  # track 1 coasts: its plot must show a gap
         if index == 8:
+            # Events are in source pixels: a source twice the recorded frame's size.
             packet.events.append(RuleEvent("tall", 1, "person", 8, 0.8, 1.72, 0.04, "geometry",
-                                           (20.0, 10.0, 10.0, 20.0), None))
+                                           (40.0, 20.0, 20.0, 40.0), None, source_scale=(2.0, 2.0)))
         sink.write(packet)
     sink.close()
     sink.close()  # idempotent: the runner's finally may follow an explicit close
@@ -79,7 +80,7 @@ def test_rrd_reads_back_with_frames_overlays_tracks_and_blueprint(tmp_path):
     assert "/tracks/3/height" not in rows, "tentative tracks are not logged"
     assert [frame for frame, _ in rows["/events"]] == [8]
     assert rows["/events"][0][1]["TextLog:text"] == ["tall: #1 person 1.72 m \u00b14 cm (geometry)"]
-    marker = rows["/camera/events"][0][1]
+    marker = rows["/camera/events"][0][1]  # around the box on the recorded image, padded by 6 px
     assert marker["Boxes2D:half_sizes"] == [pytest.approx([11.0, 16.0])]
     assert marker["Boxes2D:centers"] == [pytest.approx([25.0, 20.0])]
     status = [(frame, row["TextDocument:text"][0]) for frame, row in rows["/status"]]
