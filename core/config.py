@@ -105,7 +105,7 @@ class ObjectsConfig:
     """Network mode: the same for cyclists."""
     score_vehicle: float = 0.4
     """Network mode: the same for vehicles."""
-    score_motion: float = 0.15
+    score_motion: float = 0.25
     """Network mode: a weaker box scoring at least this is an object while it moves (``moving_share``)."""
     moving_share: float = 0.3
     """Network mode: a weak box moves when at least this share of its pixels above the ground is

@@ -4,7 +4,8 @@ The head (heightnet/contact_model.py) predicts, at 1/``stride`` of its input, on
 heatmap per class and at every cell a box (offset of the centre from the cell centre, width and
 height, in input pixels). As in CenterNet (Zhou et al. 2019), a cell is an object where its
 probability is the largest of its 3x3 neighbourhood and above a threshold; that local maximum
-is the whole non-maximum suppression, so there is no box-overlap step to tune.
+is the whole non-maximum suppression here (the objects stage drops boxes lying mostly inside a
+stronger one: ``stages.network_objects``).
 """
 
 from __future__ import annotations

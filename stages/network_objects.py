@@ -6,7 +6,8 @@ not, so a person standing still (whom a primed background model holds, and blobs
 found. Motion is a cue, never the gate: a weaker box (down to ``objects.score_motion``) is kept
 only while it moves, i.e. at least ``objects.moving_share`` of its pixels above the ground are
 foreground; a motion blob that no network box covers is no object unless
-``objects.keep_motion_blobs`` says so (``uncovered_blobs``).
+``objects.keep_motion_blobs`` says so (``uncovered_blobs``). A box lying mostly inside a stronger
+kept box is that object's fragment (``fragment_share``), not a second object.
 
 Each box is measured like a blob (``stages.object_measurements``): its own pixels are the box's
 pixels above the ground, its single-frame height the robust top of the height map on them. Scenery
@@ -44,6 +45,9 @@ class NetworkObjectConstants:
     # the kept boxes: a box drawn round a walker covers most of the walker's blob, and a blob of two
     # walkers is covered by their two boxes together.
     blob_covered_share: float = 0.5
+    # A box lying at least this share inside a stronger kept box is a fragment of that object
+    # (the head's second peak on a car's cab or a walker's legs), not an object of its own.
+    fragment_share: float = 0.5
 
 
 CONSTANTS = NetworkObjectConstants()
@@ -112,11 +116,24 @@ def network_objects(found: NetworkDetections | None, config: ObjectsConfig, heig
         own = _own_pixels((x0, y0, x1, y1), height_map, ground_mask, height_threshold_m)
         if score < limit and not _moving(foreground, (x0, y0, x1, y1), own, config.moving_share):
             continue
+        if _inside_any(clipped, [kept for kept, _ in detections]) >= CONSTANTS.fragment_share:
+            continue
         detection = _measure_box(clipped, (x0, y0, x1, y1), own, height_map, edge, config)
         detection.score = float(score)
         detection.classify(cls, NETWORK)
-        detections.append(detection)
-    return detections
+        detections.append((clipped, detection))
+    return [detection for _, detection in detections]
+
+
+def _inside_any(box: np.ndarray, others: list[np.ndarray]) -> float:
+    """The largest share of ``box``'s area (x0, y0, x1, y1) that lies inside one of ``others``."""
+    if not others:
+        return 0.0
+    others = np.asarray(others)
+    width = np.clip(np.minimum(box[2], others[:, 2]) - np.maximum(box[0], others[:, 0]), 0, None)
+    height = np.clip(np.minimum(box[3], others[:, 3]) - np.maximum(box[1], others[:, 1]), 0, None)
+    area = max(float((box[2] - box[0]) * (box[3] - box[1])), 1e-9)
+    return float((width * height).max() / area)
 
 
 def uncovered_blobs(blobs: list[Detection], boxes: list[Detection]) -> list[Detection]:

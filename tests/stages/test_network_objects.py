@@ -178,6 +178,18 @@ def test_a_motion_blob_without_a_box_is_no_object_unless_kept():
     assert [(d.cls, d.cls_source) for d in boxed] == [("cyclist", "network")]
 
 
+def test_a_box_mostly_inside_a_stronger_kept_box_is_a_fragment_of_it():
+    x0, y0, x1, y1 = box_of(STANDER)                      # 20 x 60 px
+    legs = (x0, y0 + 30, x1, y1)                          # wholly inside: the head's second peak
+    beside = (x0 + 12, y0, x1 + 12, y1)                   # 40 % inside: a neighbour in a group
+    kept = measure((x0, y0, x1, y1), extra=[("person", 0.8, legs), ("person", 0.8, beside)])
+    assert [d.box for d in kept] == [(x0, y0, 20.0, 60.0), (x0 + 12, y0, 20.0, 60.0)]
+    # The stronger box must itself be an object: a still box under its threshold suppresses nothing.
+    weak_whole = network_objects(found(("vehicle", 0.65, (x0, y0, x1, y1)), ("person", 0.6, legs)),
+                                 NETWORK_MODE, 0.1, *scene([STANDER])[1:], None, EDGE)
+    assert [d.box for d in weak_whole] == [(x0, y0 + 30, 20.0, 30.0)]
+
+
 def test_no_network_detections_no_objects():
     """A model without a head (or a stand-in that gives none): nothing, even where things move."""
     assert run(NETWORK_MODE, None).detections == []
@@ -189,14 +201,14 @@ EDGE = np.zeros((HEIGHT, WIDTH), bool)
 EDGE[:3], EDGE[-3:], EDGE[:, :3], EDGE[:, -3:] = True, True, True, True
 
 
-def measure(box, people=(STANDER,), config=NETWORK_MODE, cls="cyclist", wall=False) -> list[Detection]:
+def measure(box, people=(STANDER,), config=NETWORK_MODE, cls="cyclist", wall=False, extra=()) -> list[Detection]:
     _, heights, ground = scene(list(people))
     if wall:
         # Scenery behind the object, seen beside its head: lower than the object's own top.
         behind = heights[50:80, 30:70]
         np.maximum(behind, 1.2, out=behind)
         ground = heights < 0.1
-    return network_objects(found((cls, 0.9, box)), config, 0.1, heights, ground, None, EDGE)
+    return network_objects(found((cls, 0.9, box), *extra), config, 0.1, heights, ground, None, EDGE)
 
 
 def test_the_height_comes_from_the_box_pixels_above_the_ground():
