@@ -70,6 +70,18 @@ def test_network_mode_makes_objects_of_an_exported_heads_boxes(detector):
     packet = HeightEstimator(model, camera).process(FramePacket(Frame(0, 0.0, image), camera))
     config = ObjectsConfig(source="network", score_person=0.3, score_cyclist=0.3, score_vehicle=0.3)
     packet = ObjectExtractor(config, GroundConfig()).process(packet)
-    assert len(packet.detections) == len(packet.network_detections) > 0
-    assert {d.cls_source for d in packet.detections} == {"network"}
-    assert [d.cls for d in packet.detections] == list(packet.network_detections.classes)
+    found = packet.network_detections
+    assert len(packet.detections) > 0 and {d.cls_source for d in packet.detections} == {"network"}
+    # Every box the head found is an object of its class, or lies at least half inside a stronger
+    # one that is (its fragment: stages.network_objects): an untrained head's boxes overlap a lot.
+    kept = {(round(d.box[0]), round(d.box[1])): d.cls for d in packet.detections}
+    frame_boxes = np.clip(found.boxes, 0, [160, 96, 160, 96])
+    stronger = np.zeros((0, 4))
+    for index, (box, cls) in enumerate(zip(frame_boxes, found.classes)):
+        if kept.get((int(np.floor(box[0])), int(np.floor(box[1])))) == cls:
+            stronger = np.vstack([stronger, box])
+            continue
+        width = np.clip(np.minimum(box[2], stronger[:, 2]) - np.maximum(box[0], stronger[:, 0]), 0, None)
+        height = np.clip(np.minimum(box[3], stronger[:, 3]) - np.maximum(box[1], stronger[:, 1]), 0, None)
+        assert (width * height).max() >= 0.5 * (box[2] - box[0]) * (box[3] - box[1]), f"box {index} lost"
+    assert len(stronger) == len(packet.detections)
