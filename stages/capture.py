@@ -109,18 +109,28 @@ class FrameSource:
 
     def frames(self) -> Iterator[Frame]:
         """Frames after stride and max_frames, counting decoded and failed ones."""
-        emitted = 0
+        yield from self._fitted(self._decoded())
+
+    def _decoded(self) -> Iterator[Frame]:
+        """``_read()``'s frames as decoded, stride applied, decoded and failed ones counted."""
         for index, time_s, image in self._read():
             if image is FAILED:
                 self.stats.failed += 1
                 continue
             self.stats.decoded += 1
-            if image is SKIPPED:
-                continue
-            image = self.fit_to_size(_ensure_bgr(image), index)
+            if image is not SKIPPED:
+                yield Frame(index=index, time_s=time_s, image=_ensure_bgr(image))
+
+    def _fitted(self, decoded: Iterator[Frame]) -> Iterator[Frame]:
+        """``decoded`` at the run's frame size (``fit_to_size``), up to ``capture.max_frames``;
+        ``stats.reached_end`` once the source ran out."""
+        emitted = 0
+        for frame in decoded:
+            image = self.fit_to_size(frame.image, frame.index)
             if image is None:
                 continue
-            yield Frame(index=index, time_s=time_s, image=image, source_scale=self.source_scale)
+            frame.image, frame.source_scale = image, self.source_scale
+            yield frame
             emitted += 1
             if self.config.max_frames and emitted >= self.config.max_frames:
                 return
@@ -150,17 +160,17 @@ class FrameSource:
             return image if got == self.size else cv2.resize(image, self.size, interpolation=cv2.INTER_AREA)
         width, height = self.source_size
         got_w, got_h = got
-        seen = f"frame {index} was the first at {got_w}x{got_h} (the run's frames are {width}x{height})"
-        if abs(got_w * height - got_h * width) > CONSTANTS.aspect_tolerance * got_h * width:
-            if index is not None:
-                if not self.stats.wrong_shape:
-                    self.stats.notes.append(seen)
-                self.stats.wrong_shape += 1
-            return None
+        other_aspect = abs(got_w * height - got_h * width) > CONSTANTS.aspect_tolerance * got_h * width
         if index is not None:
-            if not self.stats.rescaled:
-                self.stats.notes.append(seen)
-            self.stats.rescaled += 1
+            if not (self.stats.wrong_shape if other_aspect else self.stats.rescaled):
+                self.stats.notes.append(f"frame {index} was the first at {got_w}x{got_h} "
+                                        f"(the run's frames are {width}x{height})")
+            if other_aspect:
+                self.stats.wrong_shape += 1
+            else:
+                self.stats.rescaled += 1
+        if other_aspect:
+            return None
         if got == self.size:
             return image
         shrink = got_w > self.size[0]

@@ -143,21 +143,10 @@ class PyAVFileSource(FrameSource):
         return container
 
     def frames(self) -> Iterator[Frame]:
-        emitted = 0
-        for frame in self._decode(self.container, self.stream, keep=lambda index: not self._skip(index),
-                                  count=True):
-            if self._skip(frame.index):
-                continue
-            image = self.fit_to_size(frame.image, frame.index)
-            if image is None:
-                continue
-            frame.image, frame.source_scale = image, self.source_scale
-            yield frame
-            emitted += 1
-            if self.config.max_frames and emitted >= self.config.max_frames:
-                return
-        self.stats.reached_end = True
-        self._count_frames_never_read()
+        decoded = self._decode(self.container, self.stream, keep=lambda index: not self._skip(index), count=True)
+        yield from self._fitted(frame for frame in decoded if not self._skip(frame.index))
+        if self.stats.reached_end:
+            self._count_frames_never_read()
 
     def _count_frames_never_read(self) -> None:
         """Frames the header counts (MP4, AVI) that never came out count as failed: cut off, or
