@@ -111,7 +111,8 @@ class ObjectsConfig:
     """Network mode: a weak box moves when at least this share of its pixels above the ground is
     foreground (all its pixels without a height map)."""
     keep_motion_blobs: bool = False
-    """Network mode: a moving blob that no network box covers is an object too (its class from its shape)."""
+    """Network mode: a moving blob that no network box covers is an object too (its class from its
+    shape); without it only blobs a quarter of the frame tall or taller are (the head misses most of those)."""
     background: str = "knn"
     """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
     work_width: int = 320

@@ -32,7 +32,8 @@ With ``objects.source = "network"`` the height network's detection head finds th
 (``network_objects``): the background model still runs, as a cue that confirms weak boxes, and
 everything above that exists to make blobs into objects (the foreground-share test, the splits,
 crown and soles, classes from shape, denoising) is not run (docs/design.md, "retired in network
-mode"), unless ``keep_motion_blobs`` adds the blobs no box covers.
+mode") but for the blobs no box covers that are big (the head misses most of those) or, with
+``keep_motion_blobs``, all of them.
 
 The stage is this module (the per-frame flow and its state); the background model's pieces are in
 ``background_model``, the blob splitters in ``blob_splitting``, the per-object measurements
@@ -52,7 +53,7 @@ from core.packets import NETWORK, Detection, FramePacket, Measurement
 from stages.association import Region, points_in_regions
 from stages.background_model import FOREGROUND_VALUE, drop_small_pieces, make_background_subtractor
 from stages.blob_splitting import split_by_foreground, split_by_heads, split_by_height_peaks
-from stages.network_objects import check_config, network_objects, uncovered_blobs
+from stages.network_objects import check_config, motion_blob_floor, network_objects, uncovered_blobs
 from stages.object_measurements import (coarse_class, fit_box_to_ends, foot_above_ground, foreground_ends,
                                         height_noise, moving_beyond_ends, robust_top, seen_outline)
 
@@ -187,15 +188,14 @@ class ObjectExtractor:
 
     def _network_detections(self, packet: FramePacket, masks: ForegroundMasks | None, scale: float,
                             work_size: tuple[int, int]) -> list[Detection]:
-        """``objects.source = "network"``: the network's boxes (``stages.network_objects``), and
-        with ``keep_motion_blobs`` the blobs that no kept box covers."""
+        """``objects.source = "network"``: the network's boxes (``stages.network_objects``), and the
+        blobs that no kept box covers: big ones, or all with ``keep_motion_blobs``."""
         src_h, src_w = packet.frame.image.shape[:2]
         edge, _ = self._image_edge(packet.image_valid, (src_w, src_h), scale, work_size)
         detections = network_objects(packet.network_detections, self.config, self.height_threshold_m,
                                      packet.height_map, packet.ground_mask, packet.foreground, edge)
-        if self.config.keep_motion_blobs:
-            blobs = self._blob_detections(packet, masks, scale, work_size) or []
-            detections += uncovered_blobs(blobs, detections)
+        blobs = self._blob_detections(packet, masks, scale, work_size) or []
+        detections += uncovered_blobs(blobs, detections, motion_blob_floor(self.config, src_h))
         return detections
 
     def _blob_detections(self, packet: FramePacket, masks: ForegroundMasks | None, scale: float,

@@ -28,8 +28,9 @@ STANDER = (40, 60, 20, 60, 1.70)
 """x, y, w, h, height_m: a person standing still from the first frame on (in the primed background)."""
 
 
-def walker(frame: int) -> tuple[int, int, int, int, float]:
-    return (150 + 5 * frame, 80, 20, 60, 1.80)
+def walker(frame: int, tall: int = 50) -> tuple[int, int, int, int, float]:
+    """A person walking right, under a quarter of the frame tall unless ``tall`` says otherwise."""
+    return (150 + 5 * frame, 80, 20, tall, 1.80)
 
 
 def _background() -> np.ndarray:
@@ -60,13 +61,13 @@ def box_of(person: tuple[int, int, int, int, float]) -> tuple[float, float, floa
 
 
 def run(config: ObjectsConfig, last: NetworkDetections | None, frames: int = 8,
-        with_walker: bool = True) -> FramePacket:
+        with_walker: bool = True, walker_tall: int = 50) -> FramePacket:
     """The stander and (optionally) a walker; the background primed as a run primes it (the median
     of early frames holds the stander); ``last`` are the network's detections of the last frame."""
     extractor = ObjectExtractor(config, GroundConfig())
-    people = [[STANDER] + ([walker(i)] if with_walker else []) for i in range(frames)]
+    people = [[STANDER] + ([walker(i, walker_tall)] if with_walker else []) for i in range(frames)]
     # Priming frames seconds apart: the walker anywhere along the way, the stander always there.
-    extractor.prime_background([scene([STANDER, (80 + 20 * k, 80, 20, 60, 1.8)])[0] for k in range(10)])
+    extractor.prime_background([scene([STANDER, (80 + 20 * k, 80, 20, walker_tall, 1.8)])[0] for k in range(10)])
     for index, present in enumerate(people):
         image, heights, ground = scene(present)
         packet = FramePacket(Frame(index, index / 10, image), CameraInfo(WIDTH, HEIGHT), ground_mask=ground,
@@ -166,6 +167,13 @@ def test_a_standing_person_with_a_confident_box_is_detected_and_blobs_miss_them(
     plain = run(ObjectsConfig(), None)
     assert [d.box for d in plain.detections] == [d.box for d in blobs.detections]
     assert [d.heights for d in plain.detections] == [d.heights for d in blobs.detections]
+
+
+def test_a_big_motion_blob_without_a_box_is_an_object_as_the_head_misses_big_ones():
+    """A quarter of the frame tall or more (the 240 px frame: 60 px): kept without a box."""
+    big = run(NETWORK_MODE, found(), walker_tall=100).detections
+    assert [(d.cls_source, round(d.height(), 1)) for d in big] == [("objects", 1.8)]
+    assert run(NETWORK_MODE, found(), walker_tall=50).detections == []
 
 
 def test_a_motion_blob_without_a_box_is_no_object_unless_kept():
