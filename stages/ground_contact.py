@@ -96,11 +96,15 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
     return np.stack([u, v], axis=-1)
 
 
+def ray_matrix(camera: PinholeCamera) -> np.ndarray:
+    """3 x 3 M with world ray = [u, v, 1] @ M (R^T K^-1 as rows): rays are affine in (u, v)."""
+    return np.linalg.inv(camera.K).T @ camera.R
+
+
 def world_rays(camera: PinholeCamera, uv: np.ndarray) -> np.ndarray:
     """World direction of the ray through each pixel (..., 2) -> (..., 3), camera z = 1."""
-    Kinv = np.linalg.inv(camera.K)
-    homog = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], axis=-1)
-    return homog @ Kinv.T @ camera.R  # R^T (K^-1 x) as rows
+    M = ray_matrix(camera)
+    return np.asarray(uv, np.float64) @ M[:2] + M[2]
 
 
 def contact_offsets(camera: PinholeCamera, height_m: np.ndarray, ground: np.ndarray) -> np.ndarray:
@@ -128,9 +132,10 @@ def contact_offsets(camera: PinholeCamera, height_m: np.ndarray, ground: np.ndar
 def heights_from_offsets(camera: PinholeCamera, offsets: np.ndarray) -> np.ndarray:
     """Height in metres above the ground (H x W) seen at each pixel, from its contact offset."""
     h, w = offsets.shape[:2]
-    uv = pixel_grid(w, h)
-    r_p = world_rays(camera, uv)
-    r_f = world_rays(camera, uv + offsets.astype(np.float64))
+    r_p = world_rays(camera, pixel_grid(w, h))
+    # Rays are affine in the pixel, so the contact point's ray is the pixel's plus the offset's
+    # share (the same numbers as world_rays(uv + offsets) to ~1e-16, at a third of the cost).
+    r_f = r_p + offsets.astype(np.float64) @ ray_matrix(camera)[:2]
     return _height(r_p, r_f, camera.C[2], np).astype(np.float32)
 
 
