@@ -50,11 +50,16 @@ def read_frame(video: Path, frame: int) -> np.ndarray:
     return image
 
 
-def draw_tracks(image: np.ndarray, tracks_csv: Path, frame: int, label: str) -> np.ndarray:
-    """The frame with the confirmed tracks of ``frame`` boxed and labelled; ``label`` on top."""
+def frame_rows(tracks_csv: Path, frame: int) -> list[dict]:
+    """The rows of ``tracks_csv`` (confirmed tracks) at ``frame``."""
+    with open(tracks_csv, newline="") as f:
+        return [row for row in csv.DictReader(f) if int(row["frame"]) == frame]
+
+
+def draw_tracks(image: np.ndarray, rows: list[dict], frame: int, label: str) -> np.ndarray:
+    """The frame with ``rows`` (its tracks.csv rows) boxed and labelled; ``label`` on top."""
     picture = image.copy()
     scale = max(1.0, picture.shape[1] / 640.0)
-    rows = [row for row in csv.DictReader(open(tracks_csv)) if int(row["frame"]) == frame]
     for row in rows:
         x, y, w, h = (float(row[key]) for key in "xywh")
         r, g, b = CLASS_COLORS_RGB.get(row["class"], CLASS_COLORS_RGB["other"])
@@ -88,10 +93,9 @@ def main() -> int:
     panels = []
     with tempfile.TemporaryDirectory() as tmp:
         for index, (label, settings) in enumerate(runs):
-            tracks = run_to_frame(args.video, args.frame, settings, Path(tmp) / f"run{index}")
-            panels.append(draw_tracks(image, tracks, args.frame, label))
-            count = sum(1 for row in csv.DictReader(open(tracks)) if int(row["frame"]) == args.frame)
-            print(f"{label}: {count} confirmed tracks at frame {args.frame}")
+            rows = frame_rows(run_to_frame(args.video, args.frame, settings, Path(tmp) / f"run{index}"), args.frame)
+            panels.append(draw_tracks(image, rows, args.frame, label))
+            print(f"{label}: {len(rows)} confirmed tracks at frame {args.frame}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(args.out), np.vstack(panels))
     print(f"wrote {args.out}")

@@ -218,8 +218,9 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     import_sinks(config)
     source = open_source(source_spec, config.capture)
     summary = RunSummary(source=source.description, capture=source.stats)
-    if source.scaling_note():
-        source.stats.notes.insert(0, source.scaling_note())
+    scaling = source.scaling_note()
+    if scaling:
+        source.stats.notes.insert(0, scaling)
     prefix.parent.mkdir(parents=True, exist_ok=True)
     outputs = output_paths(prefix, config)
     summary.outputs = outputs
