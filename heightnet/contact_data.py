@@ -28,7 +28,7 @@ import numpy as np
 
 from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
 from heightnet.data import Augmentation, apply_colour, colour_jitter, match_features, window_matches
-from heightnet.detection_targets import detection_targets, window_boxes
+from heightnet.detection_targets import PARKED_VEHICLE, detection_targets, ignored_cells, window_boxes
 from heightnet.normalisation import normalise
 
 CACHE_VERSION = 1
@@ -204,7 +204,8 @@ class ContactPairDataset:
         label), ground 2x1xHxW, instance 2x1xHxW int64, K/R (3x3) and C (3) of the window's
         camera, camera_target (3) with camera_valid, matches Kx4 with match_valid, and
         camera_channels 2x2xHxW when enabled, window 2x4 (``position_window``), and with
-        detection det_centre 2x3xhxw, det_box 2x4xhxw, det_box_mask 2x1xhxw at 1/4 of the input."""
+        detection det_centre 2x3xhxw, det_box 2x4xhxw, det_box_mask 2x1xhxw, det_ignore 2x1xhxw at 1/4
+        of the input."""
         s, t = self.index[item]
         seq = self.sequences[s]
         rng = np.random.default_rng([self.seed, self.epoch, item])
@@ -215,13 +216,15 @@ class ContactPairDataset:
         sx, sy = W / w, H / h
         camera = seq.camera.window(x0, y0, w, h, W, H, flip)
         images, offsets, heights, grounds, instances = [], [], [], [], []
-        detection: dict[str, list[np.ndarray]] = {"centre": [], "box": [], "box_mask": []}
+        detection: dict[str, list[np.ndarray]] = {"centre": [], "box": [], "box_mask": [], "ignore": []}
         for frame in (t - 1, t):
             win = (slice(y0, y0 + h), slice(x0, x0 + w))
             if self.sampling.detection:
-                boxes = window_boxes(np.asarray(seq.instance[frame][win]), np.asarray(seq.semantic[frame][win]),
-                                     sx, sy, flip, W)
-                for key, value in detection_targets(boxes, W, H).items():
+                semantic = np.asarray(seq.semantic[frame][win])
+                boxes = window_boxes(np.asarray(seq.instance[frame][win]), semantic, sx, sy, flip, W)
+                parked = _nearest((semantic == PARKED_VEHICLE).astype(np.uint8), W, H) > 0
+                ignore = ignored_cells(parked[:, ::-1] if flip else parked)
+                for key, value in detection_targets(boxes, W, H, ignore).items():
                     detection[key].append(value)
             rgb = cv2.resize(np.asarray(seq.rgb[frame][win]), (W, H), interpolation=cv2.INTER_AREA)
             off = _nearest(np.asarray(seq.offsets[frame][win], np.float32), W, H) * np.float32([sx, sy])

@@ -105,7 +105,8 @@ def contact_loss(offsets: torch.Tensor, ground_logit: torch.Tensor, camera: torc
                        + weights.camera * losses["camera"])
     if detection is not None and "det_centre" in batch:
         centre_logit, box = detection
-        losses["centre"] = centre_focal(centre_logit, batch["det_centre"].flatten(0, 1))
+        ignore = batch["det_ignore"].flatten(0, 1) if "det_ignore" in batch else None
+        losses["centre"] = centre_focal(centre_logit, batch["det_centre"].flatten(0, 1), ignore)
         losses["box"] = box_l1(box, batch["det_box"].flatten(0, 1), batch["det_box_mask"].flatten(0, 1))
         losses["total"] = losses["total"] + weights.detection * (losses["centre"] + losses["box"])
     losses["decoded"] = height.detach()
@@ -177,13 +178,17 @@ def horizon_height(camera: torch.Tensor) -> torch.Tensor:
     return torch.exp(camera[:, 2]) * torch.tan(camera[:, 0])
 
 
-def centre_focal(logit: torch.Tensor, target: torch.Tensor, alpha: float = 2.0, beta: float = 4.0) -> torch.Tensor:
+def centre_focal(logit: torch.Tensor, target: torch.Tensor, ignore: torch.Tensor | None = None,
+                 alpha: float = 2.0, beta: float = 4.0) -> torch.Tensor:
     """CenterNet's penalty-reduced focal loss, per object (target 1 at centres, a Gaussian
-    around them that lowers the penalty of near misses)."""
+    around them that lowers the penalty of near misses); no penalty for peaks on ``ignore``
+    cells (B x 1 x h x w, 1 = ignored: objects the targets cannot box)."""
     p = torch.sigmoid(logit).clamp(1e-4, 1 - 1e-4)
     centres = target.eq(1).float()
     positive = -torch.log(p) * (1 - p) ** alpha * centres
     negative = -torch.log(1 - p) * p ** alpha * (1 - target) ** beta * (1 - centres)
+    if ignore is not None:
+        negative = negative * (1 - ignore)
     return (positive.sum() + negative.sum()) / centres.sum().clamp(min=1.0)
 
 

@@ -98,27 +98,30 @@ class ContactArchitecture:
     refine: int = 0                            # channels of the full-resolution refinement (0 = none)
     gate: bool = False                         # offsets cut by a gate on the ground logit
     position: bool = False                     # source-frame coordinate input channels
+    detection_context: bool = False            # the detection head also reads the 1/16 context
 
     def to_dict(self) -> dict:
         return {"trunk": self.trunk, "widths": list(self.widths), "camera_channels": self.camera_channels,
                 "context": list(self.context), "detection": self.detection, "refine": self.refine,
-                "gate": self.gate, "position": self.position}
+                "gate": self.gate, "position": self.position, "detection_context": self.detection_context}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ContactArchitecture":
         return cls(d["trunk"], tuple(d["widths"]), int(d["camera_channels"]),
                    tuple(d.get("context", ())), bool(d.get("detection", False)), int(d.get("refine", 0)),
-                   bool(d.get("gate", False)), bool(d.get("position", False)))
+                   bool(d.get("gate", False)), bool(d.get("position", False)),
+                   bool(d.get("detection_context", False)))
 
     def grows_from(self, old: "ContactArchitecture") -> bool:
         """True if this network is ``old`` plus new parts only (context blocks, a detection
-        head, a refinement, the gate, the position channels) — parts that start as no-ops, so
-        ``old``'s weights carry over."""
+        head, a refinement, the gate, the position channels, the head's context path) — parts
+        that start as no-ops, so ``old``'s weights carry over."""
         same_core = (self.trunk, self.widths, self.camera_channels) == (old.trunk, old.widths, old.camera_channels)
         return (same_core and self.context[:len(old.context)] == old.context
                 and (self.detection or not old.detection) and old.refine in (0, self.refine)
                 and (self.gate or not old.gate) and (self.position or not old.position)
-                and self != old)
+                and (self.detection_context or not old.detection_context)
+                and (self.detection or not self.detection_context) and self != old)
 
 
 def conv_bn_relu(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
@@ -192,10 +195,20 @@ class OffsetGate(nn.Module):
 
 
 class DetectionHead(nn.Module):
-    """Centre heatmaps (logits) and boxes from the 1/4-resolution decoder features."""
+    """Centre heatmaps (logits) and boxes from the 1/4-resolution decoder features and, with
+    ``context_width``, from the 1/16 context too: a car 100 px tall spans 6 cells there but 25
+    at 1/4, where the 32 decoder channels shared with the offsets saw it only as parts (big
+    objects peaked at 0.17, docs/results.md 2026-12-04). The context path's last convolution
+    starts at zero, so a head grown with it starts as the head without it."""
 
-    def __init__(self, width: int):
+    def __init__(self, width: int, context_width: int = 0):
         super().__init__()
+        self.context = None
+        if context_width:
+            self.context = nn.Sequential(nn.Conv2d(context_width, width, 3, padding=1), nn.ReLU(inplace=True),
+                                         nn.Conv2d(width, width, 1))
+            nn.init.zeros_(self.context[2].weight)
+            nn.init.zeros_(self.context[2].bias)
         self.trunk = nn.Sequential(nn.Conv2d(width, width, 3, padding=1), nn.ReLU(inplace=True))
         self.centre = nn.Conv2d(width, len(DETECTION_CLASSES), 1)
         self.box = nn.Conv2d(width, 4, 1)
@@ -203,8 +216,10 @@ class DetectionHead(nn.Module):
         nn.init.zeros_(self.box.weight)
         nn.init.zeros_(self.box.bias)
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Centre logits, and boxes (dx, dy, w, h) in input pixels."""
+        if self.context is not None:
+            x = x + F.interpolate(self.context(context), size=x.shape[-2:], mode="bilinear", align_corners=False)
         y = self.trunk(x)
         raw = self.box(y)
         box = torch.cat([raw[:, :2] * DETECTION_STRIDE,
@@ -256,7 +271,8 @@ class ContactNet(nn.Module):
         for i in range(len(w) - 1, 0, -1):   # 1/16 -> 1/8 -> 1/4 -> 1/2
             self.decoder.append(level(arch.trunk, w[i] + w[i - 1], w[i - 1], 1))
         self.context = nn.Sequential(*(ContextBlock(w[-1], d) for d in arch.context))
-        self.detection_head = DetectionHead(w[1]) if arch.detection else None
+        self.detection_head = (DetectionHead(w[1], w[-1] if arch.detection_context else 0)
+                               if arch.detection else None)
         self.refinement = Refinement(arch.refine) if arch.refine else None
         self.offset_gate = OffsetGate() if arch.gate else None
         self.offset_head = nn.Conv2d(w[0], 2, 3, padding=1)
@@ -278,6 +294,7 @@ class ContactNet(nn.Module):
             x = block(x)
             skips.append(x)
         x = self.context(x)
+        bottleneck = x
         pooled = torch.cat([x.mean((2, 3)), x.amax((2, 3))], 1)
         camera = self.camera_head(pooled)
         quarter = None
@@ -297,7 +314,7 @@ class ContactNet(nn.Module):
             offsets = offsets * self.offset_gate(ground)
         if self.detection_head is None:
             return offsets, ground, camera
-        return (offsets, ground, camera, *self.detection_head(quarter))
+        return (offsets, ground, camera, *self.detection_head(quarter, bottleneck))
 
 
 def count_parameters(net: nn.Module) -> int:

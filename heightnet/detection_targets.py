@@ -5,6 +5,11 @@ object's box is the extent of its visible pixels in the training window; its tar
 CenterNet heatmap (Zhou et al. 2019) with an elliptical Gaussian as wide and tall as the box
 (TTFNet's shape, Liu et al. 2020: a tall thin person gets a tall thin peak), and at the centre
 cell its sub-cell offset and log box size.
+
+Parked vehicles have no instances in the generator, so their boxes are unknown; calling them
+background taught the head to tell a parked car from a moving one by its place in the scene
+(docs/results.md, 2026-12-04), which real footage does not follow and a car-park operator does
+not want. Their cells are ignored instead: the head is neither asked for them nor penalised.
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ from scipy import ndimage
 
 from heightnet.contact_model import BOX_UNIT_PX, DETECTION_CLASSES, DETECTION_STRIDE
 from synth.dataset import CLASS_NAMES, COARSE_CLASS
+
+PARKED_VEHICLE = CLASS_NAMES.index("parked_vehicle")
 
 # Boxes smaller than this (input pixels, height) are not asked for: a 3-pixel person is noise.
 MIN_BOX_PX = 4.0
@@ -60,13 +67,26 @@ def window_boxes(instance: np.ndarray, semantic: np.ndarray, scale_x: float, sca
     return boxes
 
 
-def detection_targets(boxes: list[Box], width: int, height: int) -> dict[str, np.ndarray]:
+def ignored_cells(parked: np.ndarray) -> np.ndarray:
+    """1 x h x w: heatmap cells (DETECTION_STRIDE input pixels square) that show any of a parked
+    vehicle (``parked``: an input-sized boolean mask), plus one cell around them, where a peak
+    of the neighbouring cell would sit."""
+    h, w = parked.shape[0] // DETECTION_STRIDE, parked.shape[1] // DETECTION_STRIDE
+    cells = parked[:h * DETECTION_STRIDE, :w * DETECTION_STRIDE].reshape(h, DETECTION_STRIDE, w, DETECTION_STRIDE)
+    cells = ndimage.binary_dilation(cells.any(axis=(1, 3)), iterations=1)
+    return cells[None].astype(np.float32)
+
+
+def detection_targets(boxes: list[Box], width: int, height: int,
+                      ignore: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """``centre`` C x h x w heatmap in [0, 1], ``box`` 4 x h x w (dx, dy in input pixels from the
-    cell centre; log(w / unit), log(h / unit)) and ``box_mask`` 1 x h x w at object centres."""
+    cell centre; log(w / unit), log(h / unit)), ``box_mask`` 1 x h x w at object centres and
+    ``ignore`` 1 x h x w (1 = no penalty for a peak there; ``ignored_cells``), zero at centres."""
     cw, ch = width // DETECTION_STRIDE, height // DETECTION_STRIDE
     centre = np.zeros((len(DETECTION_CLASSES), ch, cw), np.float32)
     box = np.zeros((4, ch, cw), np.float32)
     mask = np.zeros((1, ch, cw), np.float32)
+    ignored = np.zeros((1, ch, cw), np.float32) if ignore is None else ignore.copy()
     gx = np.arange(cw, dtype=np.float32)
     gy = np.arange(ch, dtype=np.float32)
     # Big boxes first, so that where centres collide the smaller (harder) object keeps its cell.
@@ -84,4 +104,5 @@ def detection_targets(boxes: list[Box], width: int, height: int) -> dict[str, np
         box[:, j, i] = (cx - (i + 0.5) * DETECTION_STRIDE, cy - (j + 0.5) * DETECTION_STRIDE,
                         math.log(bw / BOX_UNIT_PX), math.log(bh / BOX_UNIT_PX))
         mask[0, j, i] = 1.0
-    return {"centre": centre, "box": box, "box_mask": mask}
+    ignored[mask > 0] = 0.0
+    return {"centre": centre, "box": box, "box_mask": mask, "ignore": ignored}

@@ -12,7 +12,10 @@
   and class-aware, per class, box height, camera height, weather and time of day.
 
 Ground-truth boxes that are mostly hidden or too small are "don't care": neither required nor
-penalised, and a track box on one is dropped (as MOTChallenge does with occluded boxes).
+penalised, and a track box on one is dropped (as MOTChallenge does with occluded boxes). Parked
+vehicles are don't-care regions (as KITTI's DontCare areas): the generator draws them but gives
+them no box, so a box no required object claims that lies mostly on a parked vehicle's pixels is
+dropped too, neither a true nor a false positive.
 """
 
 from __future__ import annotations
@@ -28,6 +31,9 @@ from core.errors import HeightpipeError
 from pipeline.eval_sequences import EVAL_CLASSES, DetectionBox, SequenceRun, TruthBox
 
 MATCH_IOU = 0.5
+# An unmatched box lying at least this share on don't-care region pixels (parked vehicles) is left
+# out: a car's box is mostly car, a walker's box beside a parked car mostly not.
+REGION_SHARE = 0.5
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
 
 
@@ -57,16 +63,36 @@ def cared_for(truth: TruthBox, min_visibility: float, min_box_px: float) -> bool
     return truth.visibility >= min_visibility and truth.box[3] >= min_box_px
 
 
-def on_dont_care(cared: list[TruthBox], ignored: list[TruthBox], boxes) -> set[int]:
-    """Indices of the ``boxes`` that best explain a don't-care truth box (one-to-one over all the
-    truth, IoU >= ``MATCH_IOU``): neither true nor false positives, so left out of the scores."""
+def on_dont_care(cared: list[TruthBox], ignored: list[TruthBox], boxes,
+                 region: np.ndarray | None = None) -> set[int]:
+    """Indices of the ``boxes`` (x, y, w, h) that best explain a don't-care truth box (one-to-one
+    over all the truth, IoU >= ``MATCH_IOU``) or, claimed by no required box, lie mostly on the
+    don't-care ``region`` (``FrameRecord.region``): neither true nor false positives, so left
+    out of the scores."""
     from scipy.optimize import linear_sum_assignment
 
-    if not ignored or len(boxes) == 0:
+    if len(boxes) == 0 or (not ignored and region is None):
         return set()
     iou = iou_matrix([t.box for t in cared + ignored], boxes)
-    rows, cols = linear_sum_assignment(-iou)
-    return {int(c) for r, c in zip(rows, cols) if r >= len(cared) and iou[r, c] >= MATCH_IOU}
+    rows, cols = linear_sum_assignment(-iou) if iou.size else ([], [])
+    matched = {int(c): int(r) for r, c in zip(rows, cols) if iou[r, c] >= MATCH_IOU}
+    drop = {c for c, r in matched.items() if r >= len(cared)}
+    if region is not None:
+        drop |= {c for c, box in enumerate(boxes)
+                 if c not in matched and region_share(region, box) >= REGION_SHARE}
+    return drop
+
+
+def region_share(region: np.ndarray, box) -> float:
+    """The share of a box (x, y, w, h) lying on a region given as ``np.packbits`` rows."""
+    height, width = region.shape[0], region.shape[1] * 8
+    x, y, w, h = box
+    x0, y0 = max(int(np.floor(x)), 0), max(int(np.floor(y)), 0)
+    x1, y1 = min(int(np.ceil(x + w)), width), min(int(np.ceil(y + h)), height)
+    area = max(w * h, 1e-9)
+    if x1 <= x0 or y1 <= y0:
+        return 0.0
+    return float(np.unpackbits(region[y0:y1], axis=1)[:, x0:x1].sum() / area)
 
 
 def mot_data(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -> dict:
@@ -76,7 +102,7 @@ def mot_data(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -
         cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
         ignored = [t for t in frame.truth if not cared_for(t, min_visibility, min_box_px)]
         outputs = [o for o in frame.tracks if o.updated]
-        drop = on_dont_care(cared, ignored, [o.box for o in outputs])
+        drop = on_dont_care(cared, ignored, [o.box for o in outputs], frame.region)
         outputs = [o for i, o in enumerate(outputs) if i not in drop]
         gt_ids.append([t.object_id for t in cared])
         tracker_ids.append([o.track_id for o in outputs])
@@ -463,18 +489,20 @@ truth box (any class) and to one of their own class."""
 
 
 def frame_detection_counts(truth: list[TruthBox], detections: list[DetectionBox],
-                           min_visibility: float, min_box_px: float = 0.0) -> dict[str, Counter]:
+                           min_visibility: float, min_box_px: float = 0.0,
+                           region: np.ndarray | None = None) -> dict[str, Counter]:
     """One frame's detections against its required truth boxes, counted per group (``DETECTION_COUNTS``).
 
     One-to-one matching at IoU >= 0.5 (``matched_at_iou``), once over all boxes (class-agnostic)
     and once within each class (class-aware: a detection only counts for an object of its class).
     A truth box is counted in its class's and size's groups, a detection in those of the class
-    and size it claims; "all" holds both. A detection that best explains a don't-care truth box
-    is neither correct nor wrong, as in the MOT metrics.
+    and size it claims; "all" holds both. A detection that best explains a don't-care truth box,
+    or lies unclaimed on the don't-care ``region``, is neither correct nor wrong, as in the MOT
+    metrics.
     """
     cared = [t for t in truth if cared_for(t, min_visibility, min_box_px)]
     ignored = [t for t in truth if not cared_for(t, min_visibility, min_box_px)]
-    drop = on_dont_care(cared, ignored, [d.box for d in detections])
+    drop = on_dont_care(cared, ignored, [d.box for d in detections], region)
     detections = [d for i, d in enumerate(detections) if i not in drop]
     pairs = matched_at_iou([t.box for t in cared], [d.box for d in detections])
     same_class = []
@@ -515,7 +543,7 @@ def detection_scores(runs: list[SequenceRun], min_visibility: float, min_box_px:
     for run in runs:
         for frame in run.frames:
             for group, counts in frame_detection_counts(frame.truth, frame.detections,
-                                                        min_visibility, min_box_px).items():
+                                                        min_visibility, min_box_px, frame.region).items():
                 totals[group].update(counts)
                 if group == "all":
                     for scene in scene_groups(run):

@@ -16,7 +16,9 @@ import numpy as np
 
 from core.config import Config
 from core.packets import NETWORK
-from synth.dataset import COARSE_CLASS
+from synth.dataset import CLASS_NAMES, COARSE_CLASS
+
+PARKED_VEHICLE = CLASS_NAMES.index("parked_vehicle")
 
 # The classes evaluation scores: the generator's (pedestrian, car, ...) and the pipeline's
 # (object extraction's ``coarse_class``) both come down to these; anything else is "other".
@@ -70,6 +72,9 @@ class FrameRecord:
     tracks: list[OutputBox]
     """Confirmed tracks, updated or predicted."""
     detections: list[DetectionBox]
+    region: np.ndarray | None = None
+    """Don't-care pixels (the parked vehicles the generator gives no box), ``np.packbits`` along
+    rows; None where there are none (``dont_care_region``)."""
 
 
 @dataclass
@@ -96,6 +101,12 @@ class OracleHeights:
 
     def close(self) -> None:
         """Nothing to release (the Stage contract, core/stage.py)."""
+
+
+def dont_care_region(semantic: np.ndarray) -> np.ndarray | None:
+    """A frame's parked-vehicle pixels, packed (``FrameRecord.region``), or None."""
+    parked = semantic == PARKED_VEHICLE
+    return np.packbits(parked, axis=1) if parked.any() else None
 
 
 def camera_info(sequence):
@@ -168,7 +179,7 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
     start = time.perf_counter()
     try:
         with contextlib.closing(sequence_packets(sequence, chain, max_frames)) as packets:
-            for _, packet in packets:
+            for truth_frame, packet in packets:
                 if sink is not None:
                     sink.write(packet)
                 run.frames.append(FrameRecord(
@@ -179,6 +190,7 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
                                       t.cls, t.height_source, t.updated)
                             for t in packet.tracks if t.confirmed],
                     detections=[detection_record(d) for d in packet.detections],
+                    region=dont_care_region(truth_frame.semantic),
                 ))
     finally:
         if sink is not None:

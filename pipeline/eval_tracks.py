@@ -20,7 +20,8 @@ the shipped network or, with ``--heights oracle``, from the ground-truth height 
 
 Ground-truth boxes that are mostly hidden (``--min-visibility``) are "don't care": they are
 neither required nor penalised, and a track box on one is dropped (as MOTChallenge does with
-occluded and distractor boxes).
+occluded and distractor boxes); so is a box no required object claims that lies mostly on a
+parked vehicle, which the generator draws without a box (KITTI's DontCare areas).
 
 This module is the command; the work is in three: ``eval_sequences`` (running the stages over a
 sequence), ``eval_metrics`` (the scores) and ``eval_reports`` (the printed tables, the picture).

@@ -80,3 +80,17 @@ def test_a_small_mover_called_ground_costs_as_much_as_a_large_area_of_ground_cal
     base = ground_loss(right, ground, labelled, per_object)
     assert ground_loss(mover_wrong, ground, labelled, per_object) - base > \
         ground_loss(ground_wrong, ground, labelled, per_object) - base
+
+
+def test_peaks_on_ignored_cells_cost_nothing_but_the_objects_own_peak_still_counts():
+    target = torch.zeros(1, 1, 5, 5)
+    target[0, 0, 2, 2] = 1.0
+    logit = torch.full((1, 1, 5, 5), -6.0)
+    logit[0, 0, 2, 2] = 6.0
+    logit[0, 0, 0, 0] = 6.0                  # a peak on, say, a parked car
+    ignore = torch.zeros(1, 1, 5, 5)
+    ignore[0, 0, 0, 0] = 1.0
+    assert centre_focal(logit, target, ignore) < 0.01 < centre_focal(logit, target)
+    missed = logit.clone()
+    missed[0, 0, 2, 2] = -6.0
+    assert centre_focal(missed, target, ignore) > 1.0

@@ -72,3 +72,22 @@ def test_the_whole_frame_is_the_default_window():
     image = torch.zeros(2, 3, 24, 32)
     whole = torch.from_numpy(position_window(0, 0, 640, 480, 640, 480, False))[None].expand(2, 4)
     assert torch.equal(position_channels(image), position_channels(image, whole))
+
+
+def test_the_heads_context_path_starts_as_a_no_op_then_learns():
+    """A head grown with the 1/16 context path gives the heatmaps and boxes of the head it grew
+    from (its last convolution starts at zero), and the path then receives gradients."""
+    arch = ContactArchitecture(widths=(8, 8, 16, 16), context=(2,), detection=True)
+    plain = ContactNet(arch).eval()
+    grown_arch = dataclasses.replace(arch, detection_context=True)
+    assert grown_arch.grows_from(arch) and not arch.grows_from(grown_arch)
+    grown = ContactNet(grown_arch).eval()
+    missing, unexpected = grown.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("detection_head.context.") for k in missing)
+    x = torch.randn(1, 3, 64, 64)
+    with torch.no_grad():
+        for old, new in zip(plain(x), grown(x)):
+            assert torch.equal(old, new)
+    centre = grown(x)[3]
+    centre.sum().backward()
+    assert grown.detection_head.context[2].weight.grad.abs().sum() > 0

@@ -221,6 +221,8 @@ def test_detection_targets_mark_each_mover_at_its_box_centre(contact_sequences):
             assert peaks <= len(instances[instances > 0])
             total += peaks
             assert sample["det_box_mask"][frame].sum() == peaks
+            assert sample["det_ignore"][frame].shape == (1, 12, 16)
+            assert not (sample["det_ignore"][frame][0] * (centre == 1).any(axis=0)).any()
             # The targets, read as network outputs, decode to boxes around mover pixels.
             logit = np.log(np.clip(centre, 1e-6, 1 - 1e-6) / np.clip(1 - centre, 1e-6, 1))
             box = sample["det_box"][frame].copy()
@@ -250,3 +252,22 @@ def test_heightpipe_export_writes_a_v2_model_and_says_so(contact_sequences, tmp_
 def test_learning_rate_warms_up_then_steps_down_at_the_drops(step, expected):
     config = TrainV2Config(lr=1e-3, lr_drops=[1000, 5000], lr_drop_factor=0.3)
     assert learning_rate(step, config) == pytest.approx(expected)
+
+
+def test_parked_vehicles_are_ignored_cells_never_centres():
+    """Parked vehicles have no instance (no box to ask for): the cells over them and one around
+    are ignored, except where a mover's centre falls."""
+    from heightnet.contact_model import DETECTION_STRIDE
+    from heightnet.detection_targets import Box, detection_targets, ignored_cells
+
+    parked = np.zeros((48, 64), bool)
+    parked[20:28, 40:56] = True              # cells 5-6 (rows) x 10-13 (columns)
+    ignore = ignored_cells(parked)
+    assert ignore.shape == (1, 48 // DETECTION_STRIDE, 64 // DETECTION_STRIDE)
+    rows, cols = np.nonzero(ignore[0])
+    assert (rows.min(), rows.max(), cols.min(), cols.max()) == (4, 7, 9, 14)
+    mover = Box(0, 36.0, 16.0, 44.0, 32.0)  # centre (40, 24): cell (6, 10), inside the ignored area
+    targets = detection_targets([mover], 64, 48, ignore)
+    assert targets["centre"][0, 6, 10] == 1.0 and targets["ignore"][0, 6, 10] == 0.0
+    assert targets["ignore"].sum() == ignore.sum() - 1
+    assert detection_targets([mover], 64, 48)["ignore"].sum() == 0

@@ -9,6 +9,9 @@ from pipeline.eval_metrics import (_trackeval_metrics, evaluate, miss_breakdown,
                                    occlusion_events)
 from pipeline.eval_reports import format_report, objects_followed, plot_height_series
 from pipeline.eval_sequences import DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox
+from synth.dataset import CLASS_NAMES
+
+PARKED = CLASS_NAMES.index("parked_vehicle")
 
 
 def _truth(object_id, x, visibility=1.0, height=1.75, cls="person"):
@@ -47,6 +50,24 @@ def test_hidden_truth_is_dont_care():
               FrameRecord([_truth(1, 10, visibility=0.05)], [], [])]
     data = mot_data(_run(frames), 0.3)
     assert data["num_gt_dets"] == 0 and data["num_tracker_dets"] == 0
+
+
+def test_a_box_on_a_parked_vehicle_is_dont_care_unless_an_object_claims_it():
+    """Parked vehicles have no truth box; a track or detection lying mostly on one is neither
+    true nor false, but one that matches a required object still counts."""
+    from pipeline.eval_metrics import frame_detection_counts
+    from pipeline.eval_sequences import dont_care_region
+
+    semantic = np.zeros((240, 320), np.uint8)
+    semantic[50:110, 100:130] = PARKED       # a parked car at x 100-130, the box of _out(.., 100)
+    region = dont_care_region(semantic)
+    assert dont_care_region(np.zeros_like(semantic)) is None
+    frames = [FrameRecord([_truth(1, 10)], [_out(7, 10), _out(8, 100), _out(9, 200)], [], region)]
+    data = mot_data(_run(frames), 0.3)
+    assert data["num_gt_dets"] == 1 and data["num_tracker_dets"] == 2   # 8 left out, 9 a false positive
+    counts = frame_detection_counts([_truth(1, 100)], [DetectionBox((100.0, 50.0, 20.0, 60.0), 1.75, "person")],
+                                    0.3, 0.0, region)
+    assert counts["all"]["detections"] == 1 and counts["all"]["correct"] == 1   # a walker in front of it
 
 
 def test_builtin_metrics_agree_with_trackeval():
