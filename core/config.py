@@ -413,8 +413,8 @@ class TrainV2Config:
     """Dilations of residual context blocks at 1/16 (the receptive field tall objects need)."""
     detection: bool = True
     """Detection head (centre heatmaps + boxes per class) trained with the offsets."""
-    detection_context: bool = False
-    """The detection head also reads the 1/16 context features (big objects; a grown part)."""
+    detection_context: bool = True
+    """The detection head also reads the 1/16 context features (big objects; grown at 500,000 images)."""
     refine: int = 8
     """Channels of the full-resolution refinement of offsets and ground (0 = none): half-resolution
     outputs blur thin objects (people, cyclists) into the ground around them."""

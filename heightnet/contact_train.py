@@ -46,7 +46,7 @@ FIRST_CONVOLUTION = ("encoder.0.0.0.weight", "encoder.0.0.body.0.weight")
 def architecture_of(config: TrainV2Config) -> ContactArchitecture:
     return ContactArchitecture(config.trunk, tuple(config.widths), 2 if config.camera_channels else 0,
                                tuple(config.context), config.detection, config.refine,
-                               config.gate, config.position, config.detection_context)
+                               config.gate, config.position, config.detection and config.detection_context)
 
 
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
