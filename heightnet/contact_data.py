@@ -28,8 +28,9 @@ import numpy as np
 
 from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
 from heightnet.data import Augmentation, apply_colour, colour_jitter, match_features, window_matches
-from heightnet.detection_targets import PARKED_VEHICLE, detection_targets, ignored_cells, window_boxes
+from heightnet.detection_targets import detection_targets, ignored_cells, window_boxes
 from heightnet.normalisation import normalise
+from synth.dataset import PARKED_VEHICLE_ID
 
 CACHE_VERSION = 1
 # Classes scored apart in the evaluation: trucks and buses hide their contact points.
@@ -222,7 +223,7 @@ class ContactPairDataset:
             if self.sampling.detection:
                 semantic = np.asarray(seq.semantic[frame][win])
                 boxes = window_boxes(np.asarray(seq.instance[frame][win]), semantic, sx, sy, flip, W)
-                parked = _nearest((semantic == PARKED_VEHICLE).astype(np.uint8), W, H) > 0
+                parked = _nearest((semantic == PARKED_VEHICLE_ID).astype(np.uint8), W, H) > 0
                 ignore = ignored_cells(parked[:, ::-1] if flip else parked)
                 for key, value in detection_targets(boxes, W, H, ignore).items():
                     detection[key].append(value)

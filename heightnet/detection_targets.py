@@ -23,8 +23,6 @@ from scipy import ndimage
 from heightnet.contact_model import BOX_UNIT_PX, DETECTION_CLASSES, DETECTION_STRIDE
 from synth.dataset import CLASS_NAMES, COARSE_CLASS
 
-PARKED_VEHICLE = CLASS_NAMES.index("parked_vehicle")
-
 # Boxes smaller than this (input pixels, height) are not asked for: a 3-pixel person is noise.
 MIN_BOX_PX = 4.0
 # Gaussian width as a share of the box (TTFNet's alpha) and its floor in heatmap cells.

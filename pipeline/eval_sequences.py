@@ -16,9 +16,7 @@ import numpy as np
 
 from core.config import Config
 from core.packets import NETWORK
-from synth.dataset import CLASS_NAMES, COARSE_CLASS
-
-PARKED_VEHICLE = CLASS_NAMES.index("parked_vehicle")
+from synth.dataset import COARSE_CLASS, PARKED_VEHICLE_ID
 
 # The classes evaluation scores: the generator's (pedestrian, car, ...) and the pipeline's
 # (object extraction's ``coarse_class``) both come down to these; anything else is "other".
@@ -105,7 +103,7 @@ class OracleHeights:
 
 def dont_care_region(semantic: np.ndarray) -> np.ndarray | None:
     """A frame's parked-vehicle pixels, packed (``FrameRecord.region``), or None."""
-    parked = semantic == PARKED_VEHICLE
+    parked = semantic == PARKED_VEHICLE_ID
     return np.packbits(parked, axis=1) if parked.any() else None
 
 

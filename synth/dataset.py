@@ -23,9 +23,11 @@ MOVER_CLASSES = ("pedestrian", "cyclist", "car", "van", "truck", "bus")
 COARSE_CLASS = {"pedestrian": "person", "cyclist": "cyclist", "car": "vehicle", "van": "vehicle",
                 "truck": "vehicle", "bus": "vehicle"}
 GROUND_CLASS_IDS = np.array([CLASS_ID[c] for c in GROUND_CLASSES], np.uint8)
+# Drawn, but given no instance (no box): training ignores them, evaluation does not count them.
+PARKED_VEHICLE_ID = CLASS_ID["parked_vehicle"]
 
-__all__ = ["CLASS_NAMES", "MOVER_CLASSES", "COARSE_CLASS", "SynthCamera", "SequenceMeta", "SynthFrame",
-           "ObjectTruth", "SynthSequence", "list_sequences", "ground_mask"]
+__all__ = ["CLASS_NAMES", "MOVER_CLASSES", "COARSE_CLASS", "PARKED_VEHICLE_ID", "SynthCamera", "SequenceMeta",
+           "SynthFrame", "ObjectTruth", "SynthSequence", "list_sequences", "ground_mask"]
 
 
 @dataclass

@@ -9,9 +9,8 @@ from pipeline.eval_metrics import (_trackeval_metrics, evaluate, miss_breakdown,
                                    occlusion_events)
 from pipeline.eval_reports import format_report, objects_followed, plot_height_series
 from pipeline.eval_sequences import DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox
-from synth.dataset import CLASS_NAMES
+from synth.dataset import PARKED_VEHICLE_ID
 
-PARKED = CLASS_NAMES.index("parked_vehicle")
 
 
 def _truth(object_id, x, visibility=1.0, height=1.75, cls="person"):
@@ -59,7 +58,7 @@ def test_a_box_on_a_parked_vehicle_is_dont_care_unless_an_object_claims_it():
     from pipeline.eval_sequences import dont_care_region
 
     semantic = np.zeros((240, 320), np.uint8)
-    semantic[50:110, 100:130] = PARKED       # a parked car at x 100-130, the box of _out(.., 100)
+    semantic[50:110, 100:130] = PARKED_VEHICLE_ID   # a parked car at x 100-130, the box of _out(.., 100)
     region = dont_care_region(semantic)
     assert dont_care_region(np.zeros_like(semantic)) is None
     frames = [FrameRecord([_truth(1, 10)], [_out(7, 10), _out(8, 100), _out(9, 200)], [], region)]
