@@ -12,7 +12,6 @@ from pipeline.eval_sequences import DetectionBox, FrameRecord, OutputBox, Sequen
 from synth.dataset import PARKED_VEHICLE_ID
 
 
-
 def _truth(object_id, x, visibility=1.0, height=1.75, cls="person"):
     return TruthBox(object_id, cls, (x, 50.0, 20.0, 60.0), visibility, height)
 
