@@ -109,7 +109,11 @@ class ObjectsConfig:
     """Network mode: a weaker box scoring at least this is an object while it moves (``moving_share``)."""
     moving_share: float = 0.3
     """Network mode: a weak box moves when at least this share of its pixels above the ground is
-    foreground (all its pixels without a height map)."""
+    foreground (all its pixels without a height map) ..."""
+    motion_contrast: float = 0.1
+    """Network mode: ... and that share is at least this much above the foreground share of the
+    ring around the box: rain, sensor noise at dusk and swaying grass move everywhere, a walker
+    moves against a still background."""
     keep_motion_blobs: bool = False
     """Network mode: a moving blob that no network box covers is an object too (its class from its
     shape); without it only blobs a quarter of the frame tall or taller are (the head misses most of those)."""
@@ -509,7 +513,7 @@ MOVED_KEYS = {("tracking", name): "objects" for name in (
 """(old section, key) -> the section that holds the key now (object extraction left [tracking];
 keys added to [objects] since were never in [tracking])."""
 NETWORK_OBJECTS_KEYS = ("score_person", "score_cyclist", "score_vehicle", "score_motion", "moving_share",
-                        "keep_motion_blobs")
+                        "motion_contrast", "keep_motion_blobs")
 """[objects] keys that only ``source = "network"`` reads."""
 
 

@@ -193,7 +193,8 @@ def centre_focal(logit: torch.Tensor, target: torch.Tensor, ignore: torch.Tensor
 
 
 def box_l1(box: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """L1 at object centres on the centre offset (in cells) and the log box size."""
+    """L1 on the centre offset (in cells) and the log box size, weighted by ``mask`` (object
+    centres and the cells around them, ``detection_targets``; one per object)."""
     if not (mask > 0).any():
         return box.sum() * 0.0
     raw = torch.cat([box[:, :2] / DETECTION_STRIDE, torch.log(box[:, 2:] / BOX_UNIT_PX)], 1)

@@ -5,7 +5,7 @@ The network's boxes are the objects: each box scoring at least its class's thres
 not, so a person standing still (whom a primed background model holds, and blobs never find) is
 found. Motion is a cue, never the gate: a weaker box (down to ``objects.score_motion``) is kept
 only while it moves, i.e. at least ``objects.moving_share`` of its pixels above the ground are
-foreground; a motion blob that no network box covers is no object unless it is big
+foreground, ``objects.motion_contrast`` more than of the ring around it (``_moving``); a motion blob that no network box covers is no object unless it is big
 (``big_blob_share`` of the frame's height: the head misses most objects that big) or
 ``objects.keep_motion_blobs`` says so (``uncovered_blobs``). A box lying mostly inside a stronger
 kept box is that object's fragment (``fragment_share``), not a second object.
@@ -73,7 +73,8 @@ def check_config(config: ObjectsConfig) -> None:
     """ConfigError for a source or a score that cannot work."""
     if config.source not in SOURCES:
         raise ConfigError(f"objects.source must be one of {', '.join(SOURCES)}, got {config.source!r}")
-    for key in [*(CLASS_PREFIX + cls for cls in class_thresholds(config)), "score_motion", "moving_share"]:
+    for key in [*(CLASS_PREFIX + cls for cls in class_thresholds(config)), "score_motion", "moving_share",
+                "motion_contrast"]:
         if not 0.0 <= getattr(config, key) <= 1.0:
             raise ConfigError(f"objects.{key} must be between 0 and 1, got {getattr(config, key)}")
 
@@ -119,7 +120,8 @@ def network_objects(found: NetworkDetections | None, config: ObjectsConfig, heig
         if x1 <= x0 or y1 <= y0:
             continue
         own = _own_pixels((x0, y0, x1, y1), height_map, ground_mask, height_threshold_m)
-        if score < limit and not _moving(foreground, (x0, y0, x1, y1), own, config.moving_share):
+        if score < limit and not _moving(foreground, (x0, y0, x1, y1), own, config.moving_share,
+                                         config.motion_contrast):
             continue
         if _inside_any(clipped, [kept for kept, _ in detections]) >= CONSTANTS.fragment_share:
             continue
@@ -181,14 +183,34 @@ def _own_pixels(corners: tuple[int, int, int, int], height_map: np.ndarray | Non
 
 
 def _moving(foreground: np.ndarray | None, corners: tuple[int, int, int, int], own: np.ndarray,
-            share: float) -> bool:
-    """Whether at least ``share`` of the object's own pixels (the whole box if it has none) move."""
+            share: float, contrast: float) -> bool:
+    """Whether at least ``share`` of the object's own pixels (the whole box if it has none) move,
+    and ``contrast`` more of them than of the ring around the box (half the box's width each
+    side, a quarter of its height above and below).
+
+    Why the ring: in rain, in a dusk frame's sensor noise or over swaying grass the foreground is
+    everywhere, and the head's weak person boxes there moved as much as a walker (dev set,
+    docs/results.md 2026-12-04); a walker moves against still ground around it."""
     if foreground is None:
         return False
     x0, y0, x1, y1 = corners
     moving = foreground[y0:y1, x0:x1]
     pixels = moving[own] if own.any() else moving
-    return bool(pixels.size and pixels.mean() >= share)
+    if not pixels.size:
+        return False
+    inside = float(pixels.mean())
+    if inside < share:
+        return False
+    if contrast <= 0.0:
+        return True
+    height, width = foreground.shape
+    dx, dy = (x1 - x0) // 2 + 1, (y1 - y0) // 4 + 1
+    X0, Y0, X1, Y1 = max(x0 - dx, 0), max(y0 - dy, 0), min(x1 + dx, width), min(y1 + dy, height)
+    ring_area = (X1 - X0) * (Y1 - Y0) - moving.size
+    if ring_area <= 0:
+        return True
+    ring = (np.count_nonzero(foreground[Y0:Y1, X0:X1]) - np.count_nonzero(moving)) / ring_area
+    return inside - ring >= contrast
 
 
 def _measure_box(box: np.ndarray, corners: tuple[int, int, int, int], own: np.ndarray,

@@ -47,7 +47,7 @@ def test_camera_variance_learns_the_size_of_the_error():
     assert abs(float(log_var.exp()) - 0.01 / 3) < 1e-3
 
 
-def test_focal_loss_is_lower_at_the_right_peak_and_box_l1_only_counts_centres():
+def test_focal_loss_is_lower_at_the_right_peak_and_box_l1_only_counts_weighted_cells():
     target = torch.zeros(1, 1, 5, 5)
     target[0, 0, 2, 2] = 1.0
     right = torch.full((1, 1, 5, 5), -6.0)

@@ -220,7 +220,7 @@ def test_detection_targets_mark_each_mover_at_its_box_centre(contact_sequences):
             peaks = int((centre == 1).sum())
             assert peaks <= len(instances[instances > 0])
             total += peaks
-            assert sample["det_box_mask"][frame].sum() == peaks
+            assert sample["det_box_mask"][frame].sum() == pytest.approx(peaks)   # one per object
             assert sample["det_ignore"][frame].shape == (1, 12, 16)
             assert not (sample["det_ignore"][frame][0] * (centre == 1).any(axis=0)).any()
             # The targets, read as network outputs, decode to boxes around mover pixels.
@@ -271,3 +271,30 @@ def test_parked_vehicles_are_ignored_cells_never_centres():
     assert targets["centre"][0, 6, 10] == 1.0 and targets["ignore"][0, 6, 10] == 0.0
     assert targets["ignore"].sum() == ignore.sum() - 1
     assert detection_targets([mover], 64, 48)["ignore"].sum() == 0
+
+
+def test_box_targets_cover_the_cells_around_each_centre_and_point_to_its_box():
+    """Wherever the peak lands near an object, the box read there is that object's: every
+    weighted cell decodes to its box; each object weighs one, half at its centre; where a car's
+    and a person's cells meet, the person keeps its own, and no object takes another's centre."""
+    from heightnet.contact_model import BOX_UNIT_PX, DETECTION_STRIDE
+    from heightnet.detection_targets import CENTRE_BOX_SHARE, Box, detection_targets
+
+    car = Box(2, 0.0, 0.0, 64.0, 48.0)        # centre (32, 24): cell (row 6, column 8)
+    person = Box(0, 40.0, 12.0, 48.0, 44.0)   # centre (44, 28): cell (7, 11)
+    neighbour = Box(0, 44.0, 12.0, 52.0, 44.0)   # centre (48, 28): cell (7, 12)
+    targets = detection_targets([car, person, neighbour], 96, 48)
+    mask, box = targets["box_mask"][0], targets["box"]
+    assert mask[6, 8] >= CENTRE_BOX_SHARE and mask[7, 11] >= CENTRE_BOX_SHARE and mask[7, 12] >= CENTRE_BOX_SHARE
+    assert mask.sum() == pytest.approx(3.0)
+    rows, cols = np.nonzero(mask)
+    cx = (cols + 0.5) * DETECTION_STRIDE + box[0, rows, cols]
+    cy = (rows + 0.5) * DETECTION_STRIDE + box[1, rows, cols]
+    width = BOX_UNIT_PX * np.exp(box[2, rows, cols])
+    decoded = {(round(float(x)), round(float(y)), round(float(w))) for x, y, w in zip(cx, cy, width)}
+    assert decoded == {(32, 24, 64), (44, 28, 8), (48, 28, 8)}
+    owner = {(int(r), int(c)): (round(float(x)), round(float(w))) for r, c, x, w in zip(rows, cols, cx, width)}
+    assert owner[(6, 10)] == (44, 8)          # the car's Gaussian reaches it; the person wins
+    assert owner[(6, 9)] == (32, 64) and (6, 7) in owner and (5, 8) in owner
+    assert owner[(7, 12)] == (48, 8) and owner[(7, 11)] == (44, 8)   # centres are their own
+    assert len(owner) > 3 * 5

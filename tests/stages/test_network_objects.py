@@ -291,3 +291,27 @@ def test_thresholds_come_from_the_config_and_bad_values_are_errors(tmp_path):
         ObjectExtractor(ObjectsConfig(source="network", score_vehicle=1.5), GroundConfig())
     with pytest.raises(ConfigError, match="score_bus"):
         check_classes(NETWORK_MODE, ["person", "bus"], "model.onnx")
+
+
+@pytest.mark.parametrize("inside, ring, contrast, kept", [
+    (0.6, 0.0, 0.1, True),     # a walker against still ground
+    (0.6, 0.6, 0.1, False),    # rain or noise: the ring moves as much as the box
+    (0.6, 0.45, 0.1, True),    # a walker in light rain
+    (0.6, 0.55, 0.1, False),
+    (0.6, 0.6, 0.0, True),     # contrast 0: any motion confirms
+    (0.2, 0.0, 0.1, False),    # under moving_share, whatever the ring
+])
+def test_a_weak_box_is_confirmed_only_by_motion_against_its_surroundings(inside, ring, contrast, kept):
+    """A weak box is kept when its pixels move more than the ring around it (half its width each
+    side, a quarter of its height above and below): rain moves everywhere, a walker does not."""
+    rng = np.random.default_rng(3)
+    foreground = rng.random((HEIGHT, WIDTH)) < ring
+    x0, y0, x1, y1 = 100, 80, 120, 140
+    foreground[y0:y1, x0:x1] = rng.random((y1 - y0, x1 - x0)) < inside
+    heights = np.zeros((HEIGHT, WIDTH), np.float32)
+    heights[y0:y1, x0:x1] = np.linspace(1.7, 0.05, y1 - y0, dtype=np.float32)[:, None]
+    config = dataclasses.replace(NETWORK_MODE, moving_share=0.3, motion_contrast=contrast)
+    weak = found(("person", 0.3, (x0, y0, x1, y1)))
+    objects = network_objects(weak, config, 0.1, heights, heights < 0.1, foreground,
+                              np.zeros((HEIGHT, WIDTH), bool))
+    assert len(objects) == int(kept)
