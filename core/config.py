@@ -402,6 +402,11 @@ class TrainV2Config:
     not edited into ``lr``, so the run stays a function of its config and step). The defaults
     are where the committed run's curve went flat."""
     lr_drop_factor: float = 0.3
+    detection_lr_factor: float = 1.0
+    """The detection head's learning rate is the network's times this from ``detection_lr_from``
+    on: after the drops the shared trunk needs a small step, the head (a few convolutions learning
+    new targets) a larger one."""
+    detection_lr_from: int = 0
     weight_decay: float = 1e-4
     ema_decay: float = 0.999
     """Decay of the weights' moving average, which is evaluated and exported (0 = the last step's)."""

@@ -39,6 +39,7 @@ LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "
 WARMUP_STEPS = 200
 # Modules a grown network may add to a state (contact_model.ContactArchitecture.grows_from).
 GROWN_PARTS = ("context.", "detection_head.", "refinement.", "offset_gate.")
+DETECTION_HEAD = "detection_head."
 # The first convolution of a network grown with input channels (the position channels).
 FIRST_CONVOLUTION = ("encoder.0.0.0.weight", "encoder.0.0.body.0.weight")
 
@@ -64,6 +65,25 @@ def learning_rate(step: int, config: TrainV2Config, warmup_from: int = 0) -> flo
     return config.lr * config.lr_drop_factor ** drops * min(1.0, (step - warmup_from + 1) / WARMUP_STEPS)
 
 
+def parameter_groups(net: ContactNet) -> list[dict]:
+    """The optimiser's groups: the network, then its detection head (its own learning rate,
+    ``detection_lr_factor``). Within each, parameters in ``net.parameters()`` order."""
+    names = [name for name, _ in net.named_parameters()]
+    head = [name.startswith(DETECTION_HEAD) for name in names]
+    params = list(net.parameters())
+    groups = [{"params": [p for p, h in zip(params, head) if not h]}]
+    if any(head):
+        groups.append({"params": [p for p, h in zip(params, head) if h]})
+    return groups
+
+
+def group_learning_rates(step: int, config: TrainV2Config, warmup_from: int = 0) -> list[float]:
+    """Learning rate of each of ``parameter_groups``' groups (network, detection head)."""
+    base = learning_rate(step, config, warmup_from)
+    head = config.detection_lr_factor if step >= config.detection_lr_from else 1.0
+    return [base, base * head]
+
+
 def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                   held_out: Sequence[ContactSequence] = (), resume: bool = False,
                   progress: bool = True, max_steps: int | None = None) -> dict[str, Any]:
@@ -76,7 +96,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     checkpoint_path = run_dir / "checkpoint.pt"
     torch.manual_seed(config.seed)
     net = ContactNet(architecture_of(config))
-    optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    optimiser = torch.optim.AdamW(parameter_groups(net), lr=config.lr, weight_decay=config.weight_decay)
     ema = copy.deepcopy(net)
     step, images, warmup_from = 0, 0, 0
     if checkpoint_path.is_file():
@@ -107,8 +127,8 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             order = epoch_order(config.seed, epoch, len(dataset))
             items = order[position * config.batch_size:(position + 1) * config.batch_size]
             batch = collate([dataset[int(i)] for i in items])
-            for group in optimiser.param_groups:
-                group["lr"] = learning_rate(step, config, warmup_from)
+            for group, lr in zip(optimiser.param_groups, group_learning_rates(step, config, warmup_from)):
+                group["lr"] = lr
             channels = batch["camera_channels"].flatten(0, 1) if "camera_channels" in batch else None
             offsets, ground, camera, *detection = net(batch["image"].flatten(0, 1), channels,
                                                       batch["window"].flatten(0, 1))
@@ -223,8 +243,29 @@ def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
                 s["exp_avg"] = s["exp_avg"].float()
             if "exp_avg_sq" in s:
                 s["exp_avg_sq"] = s["exp_avg_sq"].float() ** 2
-        optimiser.load_state_dict(opt)
+        optimiser.load_state_dict(_in_groups(opt, net, optimiser))
     return step, images, int(state.get("warmup_from", 0))
+
+
+def _in_groups(opt: dict, net: torch.nn.Module, optimiser: torch.optim.Optimizer) -> dict:
+    """A saved optimiser state re-indexed for ``optimiser``'s groups. States saved before the
+    detection head had a group of its own hold one group, indexed in ``net.parameters()`` order;
+    ``parameter_groups`` keeps that order within each group, so index i moves to the position its
+    parameter has now."""
+    groups = optimiser.param_groups
+    if len(opt["param_groups"]) == len(groups):
+        return opt
+    position = {id(p): i for i, p in enumerate(net.parameters())}
+    order = [position[id(p)] for group in groups for p in group["params"]]   # new index -> old
+    moved = {new: opt["state"][old] for new, old in enumerate(order) if old in opt["state"]}
+    saved = opt["param_groups"][0]
+    start, regrouped = 0, []
+    for group in groups:
+        count = len(group["params"])
+        regrouped.append({**{k: v for k, v in saved.items() if k != "params"},
+                          "params": list(range(start, start + count))})
+        start += count
+    return {"state": moved, "param_groups": regrouped}
 
 
 def _widen_first_convolution(weights: dict[str, torch.Tensor], wanted: dict[str, torch.Tensor]

@@ -5,10 +5,11 @@ The network's boxes are the objects: each box scoring at least its class's thres
 not, so a person standing still (whom a primed background model holds, and blobs never find) is
 found. Motion is a cue, never the gate: a weaker box (down to ``objects.score_motion``) is kept
 only while it moves, i.e. at least ``objects.moving_share`` of its pixels above the ground are
-foreground, ``objects.motion_contrast`` more than of the ring around it (``_moving``); a motion blob that no network box covers is no object unless it is big
-(``big_blob_share`` of the frame's height: the head misses most objects that big) or
-``objects.keep_motion_blobs`` says so (``uncovered_blobs``). A box lying mostly inside a stronger
-kept box is that object's fragment (``fragment_share``), not a second object.
+foreground, ``objects.motion_contrast`` more than of the ring around it (``_moving``); a motion
+blob that no network box covers is no object unless it is big (``big_blob_share`` of the
+frame's height: the head misses most objects that big) or ``objects.keep_motion_blobs`` says so
+(``uncovered_blobs``). A box lying mostly inside a stronger kept box is that object's fragment
+(``fragment_share``), not a second object.
 
 Each box is measured like a blob (``stages.object_measurements``): its own pixels are the box's
 pixels above the ground, its single-frame height the robust top of the height map on them. Scenery

@@ -298,3 +298,35 @@ def test_box_targets_cover_the_cells_around_each_centre_and_point_to_its_box():
     assert owner[(6, 9)] == (32, 64) and (6, 7) in owner and (5, 8) in owner
     assert owner[(7, 12)] == (48, 8) and owner[(7, 11)] == (44, 8)   # centres are their own
     assert len(owner) > 3 * 5
+
+
+def test_the_detection_head_gets_its_own_learning_rate_from_its_step_on():
+    from heightnet.contact_train import group_learning_rates
+
+    config = TrainV2Config(lr=1e-3, lr_drops=[1000], lr_drop_factor=0.1, detection_lr_factor=10.0,
+                           detection_lr_from=2000)
+    assert group_learning_rates(1500, config) == pytest.approx([1e-4, 1e-4])
+    assert group_learning_rates(2000, config) == pytest.approx([1e-4, 1e-3])
+
+
+def test_a_state_saved_with_one_optimiser_group_resumes_with_the_head_in_its_own(tmp_path):
+    """Checkpoints from before the head's group hold one group in parameter order: each Adam
+    moment must land on its own parameter again."""
+    from heightnet.contact_train import parameter_groups, save_state
+
+    config = small_config(tmp_path / "run", detection=True)
+    net = ContactNet(architecture_of(config))
+    old = torch.optim.AdamW(net.parameters(), lr=1e-3)
+    image = torch.rand(2, 3, config.input_height, config.input_width)
+    sum(o.square().mean() for o in net(image)).backward()
+    old.step()
+    save_state(tmp_path / "state.pt", net, old, 1, 2, config)
+    before = {name: old.state[p]["exp_avg"].clone() for name, p in net.named_parameters()}
+
+    fresh = ContactNet(architecture_of(config))
+    grouped = torch.optim.AdamW(parameter_groups(fresh), lr=1e-3)
+    assert len(grouped.param_groups) == 2
+    load_state(tmp_path / "state.pt", fresh, grouped, config)
+    for name, p in fresh.named_parameters():
+        assert torch.allclose(grouped.state[p]["exp_avg"], before[name], atol=1e-3, rtol=1e-2), name
+    assert any(name.startswith("detection_head.") for name, _ in fresh.named_parameters())
