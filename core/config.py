@@ -110,7 +110,7 @@ class ObjectsConfig:
     moving_share: float = 0.3
     """Network mode: a weak box moves when at least this share of its pixels above the ground is
     foreground (all its pixels without a height map) ..."""
-    motion_contrast: float = 0.1
+    motion_contrast: float = 0.0
     """Network mode: ... and that share is at least this much above the foreground share of the
     ring around the box: rain, sensor noise at dusk and swaying grass move everywhere, a walker
     moves against a still background."""
@@ -402,11 +402,11 @@ class TrainV2Config:
     not edited into ``lr``, so the run stays a function of its config and step). The defaults
     are where the committed run's curve went flat."""
     lr_drop_factor: float = 0.3
-    detection_lr_factor: float = 1.0
+    detection_lr_factor: float = 10.0
     """The detection head's learning rate is the network's times this from ``detection_lr_from``
     on: after the drops the shared trunk needs a small step, the head (a few convolutions learning
     new targets) a larger one."""
-    detection_lr_from: int = 0
+    detection_lr_from: int = 71500
     weight_decay: float = 1e-4
     ema_decay: float = 0.999
     """Decay of the weights' moving average, which is evaluated and exported (0 = the last step's)."""
