@@ -407,6 +407,7 @@ class TrainV2Config:
     on: after the drops the shared trunk needs a small step, the head (a few convolutions learning
     new targets) a larger one."""
     detection_lr_from: int = 71500
+    """The step from which ``detection_lr_factor`` applies (the committed run's head got it at 71,500)."""
     weight_decay: float = 1e-4
     ema_decay: float = 0.999
     """Decay of the weights' moving average, which is evaluated and exported (0 = the last step's)."""

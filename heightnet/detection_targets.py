@@ -6,8 +6,9 @@ CenterNet heatmap (Zhou et al. 2019) with an elliptical Gaussian as wide and tal
 (TTFNet's shape, Liu et al. 2020: a tall thin person gets a tall thin peak), and its box (the
 offset of its centre from the cell, log width and height) at the centre cell and, as TTFNet
 does, at the cells around it that its Gaussian covers. Trained at the centre cell only, the head
-drew good boxes there (85 % of held-out dev people at IoU >= 0.5) but half as often a good box
-where its peak actually landed, one cell or two away (docs/results.md, 2026-12-04).
+drew good boxes there (IoU >= 0.5 for 85 % of the dev set's people) but its peaks often landed
+one or two cells away, where the box had never been trained: 65 % of its detections were good
+(docs/results.md, 2026-12-04, fourth session).
 
 Parked vehicles have no instances in the generator, so their boxes are unknown; calling them
 background taught the head to tell a parked car from a moving one by its place in the scene
