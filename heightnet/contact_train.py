@@ -68,13 +68,10 @@ def learning_rate(step: int, config: TrainV2Config, warmup_from: int = 0) -> flo
 def parameter_groups(net: ContactNet) -> list[dict]:
     """The optimiser's groups: the network, then its detection head (its own learning rate,
     ``detection_lr_factor``). Within each, parameters in ``net.parameters()`` order."""
-    names = [name for name, _ in net.named_parameters()]
-    head = [name.startswith(DETECTION_HEAD) for name in names]
-    params = list(net.parameters())
-    groups = [{"params": [p for p, h in zip(params, head) if not h]}]
-    if any(head):
-        groups.append({"params": [p for p, h in zip(params, head) if h]})
-    return groups
+    named = list(net.named_parameters())
+    head = [p for name, p in named if name.startswith(DETECTION_HEAD)]
+    groups = [{"params": [p for name, p in named if not name.startswith(DETECTION_HEAD)]}]
+    return groups + [{"params": head}] if head else groups
 
 
 def group_learning_rates(step: int, config: TrainV2Config, warmup_from: int = 0) -> list[float]:

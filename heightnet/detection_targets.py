@@ -128,11 +128,11 @@ def detection_targets(boxes: list[Box], width: int, height: int,
         spread = np.where(cells, g, 0.0)
         weight = (1 - CENTRE_BOX_SHARE) * spread / spread.sum()
         weight[j, i] += CENTRE_BOX_SHARE
-        cx, cy = (b.x0 + b.x1) / 2, (b.y0 + b.y1) / 2
-        box[0][cells] = (cx - (gx[None, :] + 0.5) * DETECTION_STRIDE).repeat(ch, 0)[cells]
-        box[1][cells] = (cy - (gy[:, None] + 0.5) * DETECTION_STRIDE).repeat(cw, 1)[cells]
-        box[2][cells] = math.log((b.x1 - b.x0) / BOX_UNIT_PX)
-        box[3][cells] = math.log((b.y1 - b.y0) / BOX_UNIT_PX)
-        mask[0][cells] = weight[cells]
-    ignored[0][centre.max(axis=0) == 1.0] = 0.0
+        rows, cols = np.nonzero(cells)
+        box[0, rows, cols] = (b.x0 + b.x1) / 2 - (gx[cols] + 0.5) * DETECTION_STRIDE
+        box[1, rows, cols] = (b.y0 + b.y1) / 2 - (gy[rows] + 0.5) * DETECTION_STRIDE
+        box[2, rows, cols] = math.log((b.x1 - b.x0) / BOX_UNIT_PX)
+        box[3, rows, cols] = math.log((b.y1 - b.y0) / BOX_UNIT_PX)
+        mask[0, rows, cols] = weight[rows, cols]
+    ignored[0][centres] = 0.0
     return {"centre": centre, "box": box, "box_mask": mask, "ignore": ignored}
