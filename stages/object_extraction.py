@@ -194,14 +194,16 @@ class ObjectExtractor:
         edge, _ = self._image_edge(packet.image_valid, (src_w, src_h), scale, work_size)
         detections = network_objects(packet.network_detections, self.config, self.height_threshold_m,
                                      packet.height_map, packet.ground_mask, packet.foreground, edge)
-        blobs = self._blob_detections(packet, masks, scale, work_size) or []
-        detections += uncovered_blobs(blobs, detections, motion_blob_floor(self.config, src_h))
+        floor = motion_blob_floor(self.config, src_h)
+        blobs = self._blob_detections(packet, masks, scale, work_size, floor) or []
+        detections += uncovered_blobs(blobs, detections, floor)
         return detections
 
     def _blob_detections(self, packet: FramePacket, masks: ForegroundMasks | None, scale: float,
-                         work_size: tuple[int, int]) -> list[Detection] | None:
+                         work_size: tuple[int, int], min_height_px: float = 0.0) -> list[Detection] | None:
         """``objects.source = "blobs"``: moving, above-ground blobs, split and measured (None when
-        there is neither a background model nor a height map)."""
+        there is neither a background model nor a height map). Blobs that cannot make a box
+        ``min_height_px`` tall (frame pixels) are left unmeasured."""
         src_h, src_w = packet.frame.image.shape[:2]
         above, work_heights = self._above_ground(packet, work_size)
         if masks is None and above is None:
@@ -220,7 +222,8 @@ class ObjectExtractor:
         candidate = candidate.astype(np.uint8)
         candidate = cv2.morphologyEx(candidate, cv2.MORPH_CLOSE, self.kernel)
         edge, work_edge = self._image_edge(packet.image_valid, (src_w, src_h), scale, work_size)
-        return self._blobs_to_detections(candidate, masks, work_heights, packet.height_map, scale, edge, work_edge)
+        return self._blobs_to_detections(candidate, masks, work_heights, packet.height_map, scale, edge, work_edge,
+                                         min_height_px)
 
     def prime(self, images: list[np.ndarray]) -> list[np.ndarray]:
         """Seed the background model from look-ahead frames (``prime_background``); pass them on."""
@@ -343,14 +346,18 @@ class ObjectExtractor:
 
     def _blobs_to_detections(self, candidate: np.ndarray, masks: ForegroundMasks | None,
                              work_heights: np.ndarray | None, height_map: np.ndarray | None, scale: float,
-                             edge: np.ndarray, work_edge: np.ndarray) -> list[Detection]:
-        """``masks``: None without a background model."""
+                             edge: np.ndarray, work_edge: np.ndarray, min_height_px: float = 0.0) -> list[Detection]:
+        """``masks``: None without a background model. A blob whose box in frame pixels (at most
+        two more than its work-size rows, scaled) stays under ``min_height_px`` is skipped before
+        it is split and measured: network mode asks only for big blobs, and splitting and
+        measuring every walker's blob cost it 1.9 ms of CPU a frame at 640x360 (docs/results.md,
+        2026-12-04, fifth session)."""
         count, labels, stats, _ = cv2.connectedComponentsWithStats(candidate, connectivity=8)
         min_area_work = self.config.min_area_px * scale * scale
         detections = []
         for label in range(1, count):
             x, y, w, h, area = stats[label]
-            if area < min_area_work:
+            if area < min_area_work or h / scale + 2 < min_height_px:
                 continue
             blob = labels[y:y + h, x:x + w] == label
             fg = None if masks is None else masks.moving[y:y + h, x:x + w]
