@@ -425,6 +425,13 @@ class TrainV2Config:
     """Detection head (centre heatmaps + boxes per class) trained with the offsets."""
     detection_context: bool = True
     """The detection head also reads the 1/16 context features (big objects; grown at 500,000 images)."""
+    detection_blocks: int = 1
+    """Residual blocks deepening the detection head (heightnet/contact_model.py ``DetectionHead``;
+    the committed run grew one at 604,000 images)."""
+    head_only: bool = True
+    """Train the detection head alone: the rest of the network keeps its averaged weights,
+    BatchNorm included, so heights stay as they are and a step costs about half (no backward pass
+    through the trunk). The committed run does so from 604,000 images; a fresh run sets false."""
     refine: int = 8
     """Channels of the full-resolution refinement of offsets and ground (0 = none): half-resolution
     outputs blur thin objects (people, cyclists) into the ground around them."""

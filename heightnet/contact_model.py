@@ -82,6 +82,8 @@ DETECTION_STRIDE = 4
 BOX_UNIT_PX = 16.0
 # Initial centre probability (CenterNet's prior): the heatmap starts almost empty, as it mostly is.
 CENTRE_PRIOR = 0.1
+# Hidden channels of the detection head's residual blocks, in multiples of its width.
+DETECTION_BLOCK_EXPAND = 2
 # Position input channels (x, y in the source frame) and the window of a whole frame in their
 # units: x = x_start + x_span * (column + 0.5) / width, likewise y.
 POSITION_CHANNELS = 2
@@ -99,29 +101,33 @@ class ContactArchitecture:
     gate: bool = False                         # offsets cut by a gate on the ground logit
     position: bool = False                     # source-frame coordinate input channels
     detection_context: bool = False            # the detection head also reads the 1/16 context
+    detection_blocks: int = 0                  # residual blocks in the detection head
 
     def to_dict(self) -> dict:
         return {"trunk": self.trunk, "widths": list(self.widths), "camera_channels": self.camera_channels,
                 "context": list(self.context), "detection": self.detection, "refine": self.refine,
-                "gate": self.gate, "position": self.position, "detection_context": self.detection_context}
+                "gate": self.gate, "position": self.position, "detection_context": self.detection_context,
+                "detection_blocks": self.detection_blocks}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ContactArchitecture":
         return cls(d["trunk"], tuple(d["widths"]), int(d["camera_channels"]),
                    tuple(d.get("context", ())), bool(d.get("detection", False)), int(d.get("refine", 0)),
                    bool(d.get("gate", False)), bool(d.get("position", False)),
-                   bool(d.get("detection_context", False)))
+                   bool(d.get("detection_context", False)), int(d.get("detection_blocks", 0)))
 
     def grows_from(self, old: "ContactArchitecture") -> bool:
         """True if this network is ``old`` plus new parts only (context blocks, a detection
-        head, a refinement, the gate, the position channels, the head's context path) — parts
-        that start as no-ops, so ``old``'s weights carry over."""
+        head, a refinement, the gate, the position channels, the head's context path and residual
+        blocks) — parts that start as no-ops, so ``old``'s weights carry over."""
         same_core = (self.trunk, self.widths, self.camera_channels) == (old.trunk, old.widths, old.camera_channels)
         return (same_core and self.context[:len(old.context)] == old.context
                 and (self.detection or not old.detection) and old.refine in (0, self.refine)
                 and (self.gate or not old.gate) and (self.position or not old.position)
                 and (self.detection_context or not old.detection_context)
-                and (self.detection or not self.detection_context) and self != old)
+                and (self.detection or not self.detection_context)
+                and (self.detection or not self.detection_blocks)
+                and self.detection_blocks >= old.detection_blocks and self != old)
 
 
 def conv_bn_relu(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
@@ -199,9 +205,14 @@ class DetectionHead(nn.Module):
     ``context_width``, from the 1/16 context too: a car 100 px tall spans 6 cells there but 25
     at 1/4, where the 32 decoder channels shared with the offsets saw it only as parts (big
     objects peaked at 0.17, docs/results.md 2026-12-04). The context path's last convolution
-    starts at zero, so a head grown with it starts as the head without it."""
+    starts at zero, so a head grown with it starts as the head without it.
 
-    def __init__(self, width: int, context_width: int = 0):
+    ``blocks`` residual blocks (3x3 convolution to ``DETECTION_BLOCK_EXPAND`` x the width, ReLU,
+    3x3 back, the last starting at zero) deepen the head before its trunk: with one convolution
+    the head underfit its own training cameras as much as held-out ones (person recall 0.42 /
+    0.39 at 604,000 images, docs/results.md 2026-12-04, fifth session)."""
+
+    def __init__(self, width: int, context_width: int = 0, blocks: int = 0):
         super().__init__()
         self.context = None
         if context_width:
@@ -209,6 +220,7 @@ class DetectionHead(nn.Module):
                                          nn.Conv2d(width, width, 1))
             nn.init.zeros_(self.context[2].weight)
             nn.init.zeros_(self.context[2].bias)
+        self.blocks = nn.ModuleList(_zero_residual(width, DETECTION_BLOCK_EXPAND * width) for _ in range(blocks))
         self.trunk = nn.Sequential(nn.Conv2d(width, width, 3, padding=1), nn.ReLU(inplace=True))
         self.centre = nn.Conv2d(width, len(DETECTION_CLASSES), 1)
         self.box = nn.Conv2d(width, 4, 1)
@@ -220,11 +232,23 @@ class DetectionHead(nn.Module):
         """Centre logits, and boxes (dx, dy, w, h) in input pixels."""
         if self.context is not None:
             x = x + F.interpolate(self.context(context), size=x.shape[-2:], mode="bilinear", align_corners=False)
+        for block in self.blocks:
+            x = x + block(x)
         y = self.trunk(x)
         raw = self.box(y)
         box = torch.cat([raw[:, :2] * DETECTION_STRIDE,
                          BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
         return self.centre(y), box
+
+
+def _zero_residual(width: int, hidden: int) -> nn.Sequential:
+    """3x3 convolution to ``hidden`` channels, ReLU, 3x3 back to ``width``, the last at zero: added
+    to its input it starts as the identity."""
+    body = nn.Sequential(nn.Conv2d(width, hidden, 3, padding=1), nn.ReLU(inplace=True),
+                         nn.Conv2d(hidden, width, 3, padding=1))
+    nn.init.zeros_(body[2].weight)
+    nn.init.zeros_(body[2].bias)
+    return body
 
 
 def position_channels(image: torch.Tensor, window: torch.Tensor | None = None) -> torch.Tensor:
@@ -271,7 +295,7 @@ class ContactNet(nn.Module):
         for i in range(len(w) - 1, 0, -1):   # 1/16 -> 1/8 -> 1/4 -> 1/2
             self.decoder.append(level(arch.trunk, w[i] + w[i - 1], w[i - 1], 1))
         self.context = nn.Sequential(*(ContextBlock(w[-1], d) for d in arch.context))
-        self.detection_head = (DetectionHead(w[1], w[-1] if arch.detection_context else 0)
+        self.detection_head = (DetectionHead(w[1], w[-1] if arch.detection_context else 0, arch.detection_blocks)
                                if arch.detection else None)
         self.refinement = Refinement(arch.refine) if arch.refine else None
         self.offset_gate = OffsetGate() if arch.gate else None

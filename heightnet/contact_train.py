@@ -47,7 +47,8 @@ FIRST_CONVOLUTION = ("encoder.0.0.0.weight", "encoder.0.0.body.0.weight")
 def architecture_of(config: TrainV2Config) -> ContactArchitecture:
     return ContactArchitecture(config.trunk, tuple(config.widths), 2 if config.camera_channels else 0,
                                tuple(config.context), config.detection, config.refine,
-                               config.gate, config.position, config.detection and config.detection_context)
+                               config.gate, config.position, config.detection and config.detection_context,
+                               config.detection_blocks if config.detection else 0)
 
 
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
@@ -96,6 +97,9 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     optimiser = torch.optim.AdamW(parameter_groups(net), lr=config.lr, weight_decay=config.weight_decay)
     ema = copy.deepcopy(net)
     step, images, warmup_from = 0, 0, 0
+    if config.head_only and not checkpoint_path.is_file():
+        raise ValueError(f"train_v2.head_only trains the detection head of a trained network, and "
+                         f"{checkpoint_path} holds none: resume a state or set train_v2.head_only = false")
     if checkpoint_path.is_file():
         if not resume:
             raise FileExistsError(f"{checkpoint_path} exists: resume it or choose another output folder")
@@ -114,6 +118,10 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     log = _CsvLog(run_dir / "log.csv", ["step", "images", "lr", *LOSS_FIELDS, "images_per_s"])
     curve = _CsvLog(run_dir / "curve.csv", None)
     net.train()
+    if config.head_only:
+        _freeze_all_but_head(net, ema)
+        if progress:
+            print("train_v2.head_only: the detection head trains alone; the rest keeps its averaged weights")
     sums: dict[str, float] = {}
     counted, tick, tick_images = 0, time.time(), 0
     bar = tqdm(total=end, initial=step, desc="train v2", disable=not progress, dynamic_ncols=True)
@@ -134,7 +142,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             losses["total"].backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
             optimiser.step()
-            update_average(ema, net, config.ema_decay)
+            update_average(ema, net, config.ema_decay, DETECTION_HEAD if config.head_only else "")
             step += 1
             images += 2 * len(items)
             tick_images += 2 * len(items)
@@ -166,12 +174,15 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     return {"step": step, "images": images, "net": net, "ema": ema}
 
 
-def update_average(ema: torch.nn.Module, net: torch.nn.Module, decay: float) -> None:
+def update_average(ema: torch.nn.Module, net: torch.nn.Module, decay: float, prefix: str = "") -> None:
     """Exponential moving average of the weights (and BatchNorm statistics): at a constant
     learning rate the last iterate wanders, and its held-out scores with it; the average is
-    what is evaluated and exported."""
+    what is evaluated and exported. Only entries named with ``prefix`` (all by default): frozen
+    parts stay bit for bit."""
     with torch.no_grad():
-        for averaged, current in zip(ema.state_dict().values(), net.state_dict().values()):
+        for (name, averaged), current in zip(ema.state_dict().items(), net.state_dict().values()):
+            if not name.startswith(prefix):
+                continue
             if averaged.dtype.is_floating_point:
                 averaged.mul_(decay).add_(current, alpha=1 - decay)
             else:
@@ -201,6 +212,23 @@ def _compact(key: str, value: Any) -> Any:
     if key == "exp_avg_sq":   # stored as its square root: tiny second moments stay representable
         return value.sqrt().to(torch.float16)
     return value
+
+
+def _freeze_all_but_head(net: ContactNet, ema: ContactNet) -> None:
+    """Only the detection head learns: every other part takes the averaged weights (what is
+    exported) and keeps them, no gradients, running as at inference (BatchNorm on its running
+    statistics), so the head trains on exactly the features the exported network gives it."""
+    if net.detection_head is None:
+        raise ValueError("train_v2.head_only needs the detection head (train_v2.detection = true)")
+    averaged = ema.state_dict()
+    with torch.no_grad():
+        for name, value in net.state_dict().items():
+            if not name.startswith(DETECTION_HEAD):
+                value.copy_(averaged[name])
+    for name, parameter in net.named_parameters():
+        parameter.requires_grad_(name.startswith(DETECTION_HEAD))
+    net.eval()
+    net.detection_head.train()
 
 
 def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer | None,

@@ -19,6 +19,9 @@ import csv
 import sys
 from pathlib import Path
 
+# Every arm is a fresh run of the network as it was then: the whole network trains, and the
+# detection head (where an arm has one) has no residual blocks.
+FRESH_RUN = {"head_only": False, "detection_blocks": 0}
 # The recipe's arms were measured on the first network (no context blocks, no detection head).
 FIRST_NETWORK = {"context": [], "detection": False, "refine": 0, "gate": False, "position": False,
                  "crop_probability": 0.0}
@@ -84,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     from heightnet.contact_train import train_contact
 
     config = TrainV2Config(out=str(Path(args.out) / args.arm), steps=args.steps, threads=args.threads,
-                           eval_every=args.eval_every, checkpoint_every=args.eval_every, **ARMS[args.arm])
+                           eval_every=args.eval_every, checkpoint_every=args.eval_every,
+                           **{**FRESH_RUN, **ARMS[args.arm]})
     train_contact(config, train, test, resume=True, progress=False)
     return 0
 
@@ -106,7 +110,7 @@ def print_speed(threads: int, steps: int = 6, batch_pairs: int = 4) -> None:
         if arm == "crops":
             continue   # same network as base
         torch.manual_seed(0)
-        net = ContactNet(architecture_of(TrainV2Config(**changes)))
+        net = ContactNet(architecture_of(TrainV2Config(**{**FRESH_RUN, **changes})))
         optimiser = torch.optim.AdamW(net.parameters())
         images = torch.randn(2 * batch_pairs, 3, 240, 320)
         channels = torch.randn(2 * batch_pairs, 2, 240, 320) if net.arch.camera_channels else None

@@ -91,3 +91,21 @@ def test_the_heads_context_path_starts_as_a_no_op_then_learns():
     centre = grown(x)[3]
     centre.sum().backward()
     assert grown.detection_head.context[2].weight.grad.abs().sum() > 0
+
+
+def test_the_heads_residual_blocks_start_as_a_no_op_then_learn():
+    """A head deepened with residual blocks gives the heatmaps and boxes of the head it grew from
+    (each block's last convolution starts at zero); fewer blocks than the state is no growth."""
+    arch = ContactArchitecture(widths=(8, 8, 16, 16), context=(2,), detection=True, detection_context=True)
+    plain = ContactNet(arch).eval()
+    deeper = dataclasses.replace(arch, detection_blocks=1)
+    assert deeper.grows_from(arch) and not arch.grows_from(deeper)
+    grown = ContactNet(deeper).eval()
+    missing, unexpected = grown.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("detection_head.blocks.") for k in missing)
+    x = torch.randn(1, 3, 64, 64)
+    with torch.no_grad():
+        for old, new in zip(plain(x), grown(x)):
+            assert torch.equal(old, new)
+    grown(x)[3].sum().backward()
+    assert grown.detection_head.blocks[0][2].weight.grad.abs().sum() > 0

@@ -28,6 +28,7 @@ def contact_sequences(tmp_path_factory):
 
 
 def small_config(out, **kw) -> TrainV2Config:
+    kw = {"head_only": False, "detection_blocks": 0, **kw}   # the shipped run's stretch, not a fresh one
     return TrainV2Config(out=str(out), input_width=64, input_height=64, steps=4, batch_size=2,
                               threads=1, checkpoint_every=2, log_every=1, eval_every=2,
                               widths=[8, 8, 16, 16], **kw)
@@ -188,6 +189,26 @@ def test_a_grown_network_starts_as_the_state_it_grew_from(contact_sequences, tmp
     assert curve[0]["det_recall_person"] == "nan" and curve[1]["det_recall_person"] != "nan"
     with pytest.raises(ValueError, match="cannot resume"):
         load_state(tmp_path / "run" / "checkpoint.pt", ContactNet(architecture_of(small)), None, small)
+
+
+def test_head_only_training_moves_the_head_and_nothing_else(contact_sequences, tmp_path):
+    """With ``head_only`` the rest of the network keeps the averaged weights it resumed with
+    (BatchNorm statistics included) in the trained and the averaged copy; the head learns."""
+    first = train_contact(small_config(tmp_path / "run", detection=True), contact_sequences, progress=False,
+                          max_steps=2)
+    start = {k: v.clone() for k, v in first["ema"].state_dict().items()}
+    after = train_contact(small_config(tmp_path / "run", detection=True, detection_blocks=1, head_only=True),
+                          contact_sequences, resume=True, progress=False, max_steps=2)
+    for name, value in after["ema"].state_dict().items():
+        if name.startswith("detection_head."):
+            continue
+        assert torch.equal(value, start[name]), name
+        assert torch.equal(after["net"].state_dict()[name], start[name]), name
+    head = [k for k in start if k.startswith("detection_head.trunk.")]
+    assert any(not torch.equal(after["net"].state_dict()[k], start[k]) for k in head)
+    with pytest.raises(ValueError, match="head_only"):
+        train_contact(small_config(tmp_path / "fresh", head_only=True), contact_sequences, progress=False,
+                      max_steps=1)
 
 
 def test_a_log_written_with_fewer_columns_is_widened(tmp_path):
