@@ -1,4 +1,5 @@
-"""HeightNet v2's network: the offset gate and the position channels (heightnet/contact_model.py)."""
+"""HeightNet v2's network: the offset gate, the position channels and the detection head's grown
+parts (heightnet/contact_model.py)."""
 
 import dataclasses
 
@@ -74,38 +75,24 @@ def test_the_whole_frame_is_the_default_window():
     assert torch.equal(position_channels(image), position_channels(image, whole))
 
 
-def test_the_heads_context_path_starts_as_a_no_op_then_learns():
-    """A head grown with the 1/16 context path gives the heatmaps and boxes of the head it grew
-    from (its last convolution starts at zero), and the path then receives gradients."""
+@pytest.mark.parametrize("grown_part, new_keys, last_weight", [
+    ({"detection_context": True}, "detection_head.context.", lambda head: head.context[2].weight),
+    ({"detection_blocks": 1}, "detection_head.blocks.", lambda head: head.blocks[0][2].weight),
+])
+def test_the_heads_grown_parts_start_as_a_no_op_then_learn(grown_part, new_keys, last_weight):
+    """A head grown with the 1/16 context path or a residual block gives the heatmaps and boxes of
+    the head it grew from (the new part's last convolution starts at zero), and the part then
+    receives gradients; a state with the part does not grow into one without it."""
     arch = ContactArchitecture(widths=(8, 8, 16, 16), context=(2,), detection=True)
     plain = ContactNet(arch).eval()
-    grown_arch = dataclasses.replace(arch, detection_context=True)
+    grown_arch = dataclasses.replace(arch, **grown_part)
     assert grown_arch.grows_from(arch) and not arch.grows_from(grown_arch)
     grown = ContactNet(grown_arch).eval()
     missing, unexpected = grown.load_state_dict(plain.state_dict(), strict=False)
-    assert not unexpected and missing and all(k.startswith("detection_head.context.") for k in missing)
-    x = torch.randn(1, 3, 64, 64)
-    with torch.no_grad():
-        for old, new in zip(plain(x), grown(x)):
-            assert torch.equal(old, new)
-    centre = grown(x)[3]
-    centre.sum().backward()
-    assert grown.detection_head.context[2].weight.grad.abs().sum() > 0
-
-
-def test_the_heads_residual_blocks_start_as_a_no_op_then_learn():
-    """A head deepened with residual blocks gives the heatmaps and boxes of the head it grew from
-    (each block's last convolution starts at zero); fewer blocks than the state is no growth."""
-    arch = ContactArchitecture(widths=(8, 8, 16, 16), context=(2,), detection=True, detection_context=True)
-    plain = ContactNet(arch).eval()
-    deeper = dataclasses.replace(arch, detection_blocks=1)
-    assert deeper.grows_from(arch) and not arch.grows_from(deeper)
-    grown = ContactNet(deeper).eval()
-    missing, unexpected = grown.load_state_dict(plain.state_dict(), strict=False)
-    assert not unexpected and missing and all(k.startswith("detection_head.blocks.") for k in missing)
+    assert not unexpected and missing and all(k.startswith(new_keys) for k in missing)
     x = torch.randn(1, 3, 64, 64)
     with torch.no_grad():
         for old, new in zip(plain(x), grown(x)):
             assert torch.equal(old, new)
     grown(x)[3].sum().backward()
-    assert grown.detection_head.blocks[0][2].weight.grad.abs().sum() > 0
+    assert last_weight(grown.detection_head).grad.abs().sum() > 0
