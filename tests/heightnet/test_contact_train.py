@@ -28,7 +28,7 @@ def contact_sequences(tmp_path_factory):
 
 
 def small_config(out, **kw) -> TrainV2Config:
-    kw = {"head_only": False, "detection_blocks": 0, **kw}   # the shipped run's stretch, not a fresh one
+    kw = {"head_only": False, "detection_blocks": 0, **kw}   # a fresh run: the whole network trains
     return TrainV2Config(out=str(out), input_width=64, input_height=64, steps=4, batch_size=2,
                               threads=1, checkpoint_every=2, log_every=1, eval_every=2,
                               widths=[8, 8, 16, 16], **kw)
