@@ -37,9 +37,9 @@ from heightnet.train import collate, epoch_order
 LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "ground", "camera",
                "centre", "box", "mover_rmse_cm"]
 WARMUP_STEPS = 200
-# Modules a grown network may add to a state (contact_model.ContactArchitecture.grows_from).
-GROWN_PARTS = ("context.", "detection_head.", "refinement.", "offset_gate.")
 DETECTION_HEAD = "detection_head."
+# Modules a grown network may add to a state (contact_model.ContactArchitecture.grows_from).
+GROWN_PARTS = ("context.", DETECTION_HEAD, "refinement.", "offset_gate.")
 # The first convolution of a network grown with input channels (the position channels).
 FIRST_CONVOLUTION = ("encoder.0.0.0.weight", "encoder.0.0.body.0.weight")
 
