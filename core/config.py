@@ -116,6 +116,11 @@ class ObjectsConfig:
     """Network mode: ... and that share is at least this much above the foreground share of the
     ring around the box: rain, sensor noise at dusk and swaying grass move everywhere, a walker
     moves against a still background."""
+    continue_score: float = 0.2
+    """Network mode: a box weaker than that, scoring at least this, moving or not, may carry on a
+    confirmed track it overlaps (IoU >= 0.5 with its prediction) but never starts one (ByteTrack's
+    low-score round): a walker whose score dips for a few frames keeps his track. At or above the
+    class thresholds: off."""
     keep_motion_blobs: bool = False
     """Network mode: a moving blob that no network box covers is an object too (its class from its
     shape); without it only blobs a quarter of the frame tall or taller are (the head misses most of those)."""
@@ -528,7 +533,7 @@ MOVED_KEYS = {("tracking", name): "objects" for name in (
 """(old section, key) -> the section that holds the key now (object extraction left [tracking];
 keys added to [objects] since were never in [tracking])."""
 NETWORK_OBJECTS_KEYS = ("score_person", "score_cyclist", "score_vehicle", "score_motion", "moving_share",
-                        "motion_contrast", "keep_motion_blobs")
+                        "motion_contrast", "continue_score", "keep_motion_blobs")
 """[objects] keys that only ``source = "network"`` reads."""
 
 

@@ -179,6 +179,10 @@ class Detection:
     the tracker."""
     score: float = 1.0
     """The network's score for a detection of its head (``NetworkDetections``); 1 for a blob's."""
+    continues_only: bool = False
+    """A weak box of the network's head (below its class's threshold, not confirmed by motion):
+    it may carry on a confirmed track it lies on, never start one (ByteTrack's low-score round);
+    the tracking stage drops it from the frame's objects when it carries none."""
     cls: str = "other"
     """Coarse class (``OBJECT_CLASSES``); the tracker votes over frames."""
     cls_source: str = ""

@@ -258,11 +258,12 @@ class NetworkScale:
         return float(1.2533 * 1.4826 * np.median(np.abs(ratios - np.median(ratios))) / np.sqrt(n))
 
     def rescale(self, detections: list[Detection]) -> None:
-        """Learn from this frame's whole people, then replace each network height (vehicles' aside)
-        by the rescaled one, its noise grown by the scale's uncertainty (source "geometry scale")."""
+        """Learn from this frame's whole people (not from weak boxes that may lie on nothing), then
+        replace each network height (vehicles' aside) by the rescaled one, its noise grown by the
+        scale's uncertainty (source "geometry scale")."""
         for d in detections:
             network, geometry = d.heights.get(NETWORK), d.heights.get(GEOMETRY)
-            if (d.cls == "person" and geometry is not None and network is not None
+            if (d.cls == "person" and not d.continues_only and geometry is not None and network is not None
                     and np.isfinite(network.value_m) and network.value_m > 0):
                 self.log_ratios.append(float(np.log(geometry.value_m / network.value_m)))
         scale, relative = self.scale, self.scale_noise

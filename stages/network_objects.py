@@ -5,7 +5,9 @@ The network's boxes are the objects: each box scoring at least its class's thres
 not, so a person standing still (whom a primed background model holds, and blobs never find) is
 found. Motion is a cue, never the gate: a weaker box (down to ``objects.score_motion``) is kept
 only while it moves, i.e. at least ``objects.moving_share`` of its pixels above the ground are
-foreground, ``objects.motion_contrast`` more than of the ring around it (``_moving``); a motion
+foreground, ``objects.motion_contrast`` more than of the ring around it (``_moving``). A box
+weaker still, or one that does not move, down to ``objects.continue_score``, is passed on as
+``continues_only``: the tracker lets it carry on a track it lies on, never start one. A motion
 blob that no network box covers is no object unless it is big (``big_blob_share`` of the
 frame's height: the head misses most objects that big) or ``objects.keep_motion_blobs`` says so
 (``uncovered_blobs``). A box lying mostly inside a stronger kept box is that object's fragment
@@ -67,7 +69,7 @@ def class_thresholds(config: ObjectsConfig) -> dict[str, float]:
 
 def min_score(config: ObjectsConfig) -> float:
     """The weakest score any box is kept at: the network need not decode weaker peaks."""
-    return min(config.score_motion, *class_thresholds(config).values())
+    return min(config.score_motion, config.continue_score, *class_thresholds(config).values())
 
 
 def check_config(config: ObjectsConfig) -> None:
@@ -75,7 +77,7 @@ def check_config(config: ObjectsConfig) -> None:
     if config.source not in SOURCES:
         raise ConfigError(f"objects.source must be one of {', '.join(SOURCES)}, got {config.source!r}")
     for key in [*(CLASS_PREFIX + cls for cls in class_thresholds(config)), "score_motion", "moving_share",
-                "motion_contrast"]:
+                "motion_contrast", "continue_score"]:
         if not 0.0 <= getattr(config, key) <= 1.0:
             raise ConfigError(f"objects.{key} must be between 0 and 1, got {getattr(config, key)}")
 
@@ -113,7 +115,7 @@ def network_objects(found: NetworkDetections | None, config: ObjectsConfig, heig
     detections = []
     for box, cls, score in zip(found.boxes, found.classes, found.scores):
         limit = thresholds.get(cls)
-        if limit is None or score < min(limit, config.score_motion):
+        if limit is None or score < min(limit, config.score_motion, config.continue_score):
             continue
         clipped = np.clip(np.asarray(box, float), 0.0, [frame_w, frame_h, frame_w, frame_h])
         x0, y0 = int(np.floor(clipped[0])), int(np.floor(clipped[1]))
@@ -121,13 +123,17 @@ def network_objects(found: NetworkDetections | None, config: ObjectsConfig, heig
         if x1 <= x0 or y1 <= y0:
             continue
         own = _own_pixels((x0, y0, x1, y1), height_map, ground_mask, height_threshold_m)
-        if score < limit and not _moving(foreground, (x0, y0, x1, y1), own, config.moving_share,
-                                         config.motion_contrast):
+        weak = score < limit and not (score >= config.score_motion and _moving(
+            foreground, (x0, y0, x1, y1), own, config.moving_share, config.motion_contrast))
+        if weak and score < config.continue_score:
             continue
-        if _inside_any(clipped, [kept for kept, _ in detections]) >= CONSTANTS.fragment_share:
+        # A weak box is no fragment-maker: a box that is an object is measured against objects only.
+        stronger = [kept for kept, other in detections if weak or not other.continues_only]
+        if _inside_any(clipped, stronger) >= CONSTANTS.fragment_share:
             continue
         detection = _measure_box(clipped, (x0, y0, x1, y1), own, height_map, edge, config)
         detection.score = float(score)
+        detection.continues_only = weak
         detection.classify(cls, NETWORK)
         detections.append((clipped, detection))
     return [detection for _, detection in detections]

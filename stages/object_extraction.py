@@ -196,7 +196,8 @@ class ObjectExtractor:
                                      packet.height_map, packet.ground_mask, packet.foreground, edge)
         floor = motion_blob_floor(self.config, src_h)
         blobs = self._blob_detections(packet, masks, scale, work_size, floor) or []
-        detections += uncovered_blobs(blobs, detections, floor)
+        # A weak box (continues_only) may find no track to carry on: it hides no blob.
+        detections += uncovered_blobs(blobs, [d for d in detections if not d.continues_only], floor)
         return detections
 
     def _blob_detections(self, packet: FramePacket, masks: ForegroundMasks | None, scale: float,

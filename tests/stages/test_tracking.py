@@ -503,3 +503,34 @@ def test_damaged_frames_carry_the_track_but_fuse_no_height():
         heights.append(packet.tracks[0].height_m)
     assert heights[10:] == [heights[9]] * 10            # no height fused on a damaged frame
     assert packet.tracks[0].box[0] > 60                 # while the box still follows the object
+
+
+def _weak(detection: Detection) -> Detection:
+    detection.continues_only = True
+    return detection
+
+
+@pytest.mark.parametrize("gap, shift, carried", [
+    (0, 0.0, True),      # a walker whose score dipped this frame: the track goes on
+    (0, 20.0, False),    # a weak box beside the prediction (IoU < 0.5) carries nothing
+    (1, 0.0, False),     # a track already coasting is not carried on by a weak box
+])
+def test_a_weak_box_carries_on_a_track_seen_last_frame_and_never_starts_one(gap, shift, carried):
+    stage = TrackingStage(TrackingConfig(min_hits=3))
+    image = np.zeros((240, 320, 3), np.uint8)
+
+    def step(index: int, detections: list[Detection]) -> FramePacket:
+        packet = FramePacket(Frame(index, index / 10, image), CameraInfo(320, 240), detections=detections)
+        return stage.process(packet)
+
+    for frame in range(5):
+        step(frame, [_detection(50 + 4 * frame, 100, 1.7)])
+    for frame in range(5, 5 + gap):
+        step(frame, [])
+    frame = 5 + gap
+    packet = step(frame, [_weak(_detection(50 + 4 * frame + shift, 100, 1.7)),
+                          _weak(_detection(250, 20, 1.7))])          # a weak box on nothing
+    (track,) = packet.tracks
+    assert (track.track_id, track.updated) == (1, carried)
+    # The weak box on nothing is no object this frame; the one that carried the track is.
+    assert [d.box[1] for d in packet.detections] == ([100] if carried else [])
