@@ -66,6 +66,11 @@ class HeightConfig:
     needs the camera: README)."""
     threads: int = 2
     """ONNX Runtime intra-op threads."""
+    input_width: int = 0
+    """Network input width in pixels (0 = the width the model was trained at, 320); the height
+    keeps the trained aspect. Twice as wide finds objects half as tall (a 640x480 camera's far
+    walkers) at four times the network's cost: for archives and big frames, not for real time.
+    Needs a v2 export with a free input size (the shipped one has)."""
 
 
 @dataclass

@@ -1,6 +1,7 @@
 """HeightNet v2 state -> ONNX file, checked against PyTorch.
 
-The graph ends at what the network knows: ``offsets`` (1 x 2 x H x W, input pixels to each
+The graph's input size is free (the metadata names the one it was trained at); it ends at what
+the network knows: ``offsets`` (1 x 2 x H x W, input pixels to each
 pixel's ground-contact point), ``ground_logit`` (1 x 1 x H x W) and ``camera`` (1 x 6: pitch,
 roll, log vertical focal length in image heights, then their log-variances) and, with a
 detection head, ``centre_logit`` (1 x 3 x H/4 x W/4) and ``box`` (1 x 4 x H/4 x W/4). Metres need the
@@ -65,9 +66,13 @@ def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp.onnx")
+    # A free input size (the metadata keeps the trained one): the run time may choose another
+    # (``height.input_width``) and fixes it when it builds its session.
+    free = {"image": {2: "height", 3: "width"}}
+    free.update({name: {2: f"{name}_height", 3: f"{name}_width"} for name in output_names(net) if name != "camera"})
     torch.onnx.export(net, (example,), str(tmp), input_names=["image"],
                       output_names=output_names(net), opset_version=OPSET,
-                      do_constant_folding=True, dynamo=False)
+                      do_constant_folding=True, dynamo=False, dynamic_axes=free)
     model = onnx.load(str(tmp))
     del model.metadata_props[:]
     for key, value in contact_metadata(net, width, height, int(state["images"])).items():

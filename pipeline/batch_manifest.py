@@ -60,6 +60,9 @@ def config_fingerprint(config: Config) -> str:
     relevant = {name: dataclasses.asdict(getattr(config, name))
                 for name in ("capture", "ground", "height", "matching", "tracking", "camera", "output")}
     relevant["height"].pop("threads")
+    if not config.height.input_width:
+        # The trained input size, as before the key existed: archives made then are not redone.
+        relevant["height"].pop("input_width")
     relevant["output"].pop("progress")
     relevant["output"].pop("directory")
     # Object extraction's keys are hashed under "tracking", where they were before they got their

@@ -16,6 +16,7 @@ left alone, so a network that gains heads still loads. A v2 network whose metada
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -25,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from core.errors import ModelError
+from core.errors import ConfigError, ModelError
 from core.packets import CameraInfo, Frame, NetworkDetections
 from stages.centre_detections import centre_detections, in_frame
 
@@ -60,6 +61,9 @@ class HeightNetModelConstants:
     # moves a probability by a few 1e-8, the margin by at least 1e-4 (thresholds 0.01-0.99).
     logit_margin: float = 0.01
     threshold_range: tuple[float, float] = (0.01, 0.99)
+    # An input size other than the trained one is rounded to a multiple of this: the v2 trunk
+    # halves the image four times (its deepest features are 1/16 of the input).
+    size_multiple: int = 16
 
 
 CONSTANTS = HeightNetModelConstants()
@@ -184,31 +188,34 @@ class HeightNetModel:
     detection_min_score : float
         A detection head's peaks weaker than this are not decoded (object extraction passes its
         lowest threshold, ``stages.network_objects.min_score``).
+    input_width : int
+        Run the network at this input width (0 = the size it was trained at); the height keeps
+        the trained aspect, both rounded to ``CONSTANTS.size_multiple``. Needs an export with a
+        free input size (``heightpipe export`` writes one); ONNX Runtime then fixes the size when
+        the session is built, so it runs as fast as a fixed-size export.
     """
 
     def __init__(self, model_path: str | Path = "", threads: int = 2,
-                 detection_min_score: float = CONSTANTS.detection_min_score):
-        import onnxruntime as ort
-
+                 detection_min_score: float = CONSTANTS.detection_min_score, input_width: int = 0):
         path = NAMED_MODELS.get(str(model_path)) or (Path(model_path) if model_path else SHIPPED_MODEL)
         if not path.is_file():
             raise ModelError(f"model file not found: {path}")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
-        options.inter_op_num_threads = 1
-        # ONNX Runtime's pool threads busy-wait for the next piece of work by default: on two
-        # cores the second thread then burns a core the other stages need (sample, 2 threads:
-        # 41 ms of CPU per run spinning, 23 ms not, 21 ms with one thread; outputs identical).
-        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        options.log_severity_level = 3
-        try:
-            self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own untyped errors for bad files
-            first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ModelError(f"{path} is not a loadable ONNX model: {first_line[:200]}") from None
+        if input_width < 0:
+            raise ConfigError(f"height.input_width must be 0 (the trained size) or a width in pixels, "
+                              f"got {input_width}")
         self.path = path
         self.detection_min_score = detection_min_score
+        self.session = _session(path, threads)
         self.info = _read_info(path, self.session.get_modelmeta().custom_metadata_map)
+        free = [dim for dim in self.session.get_inputs()[0].shape[2:] if not isinstance(dim, int)]
+        if len(free) == 2:
+            # A free input size: fixed here, at the trained size or the one asked for.
+            width, height = input_size(self.info, input_width)
+            self.info = dataclasses.replace(self.info, input_width=width, input_height=height)
+            self.session = _session(path, threads, dict(zip(free, (height, width))))
+        elif input_width and input_size(self.info, input_width) != (self.info.input_width, self.info.input_height):
+            raise ModelError(f"{path} takes only its fixed {self.info.input_width}x{self.info.input_height} "
+                             f"input, not {input_width} wide (a v2 export by heightpipe export takes any width)")
         self._check_signature()
         self._mean = np.array(self.info.mean, np.float32) * 255.0
         self._inv_std = 1.0 / (np.array(self.info.std, np.float32) * 255.0)
@@ -294,6 +301,36 @@ class HeightNetModel:
         if self.info.output_units == "metres":
             return height
         return height * np.float32(camera.height_m)
+
+
+def input_size(info: ModelInfo, input_width: int) -> tuple[int, int]:
+    """(width, height) the network runs at: ``input_width`` (0 = the trained width) with the
+    trained aspect, each rounded to a multiple of ``CONSTANTS.size_multiple`` (at least one)."""
+    step = CONSTANTS.size_multiple
+    width = input_width or info.input_width
+    height = width * info.input_height / info.input_width
+    return max(step, round(width / step) * step), max(step, round(height / step) * step)
+
+
+def _session(path: Path, threads: int, sizes: dict[str, int] | None = None):
+    """An ONNX Runtime CPU session; ``sizes`` fixes the model's free dimensions by name."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    # ONNX Runtime's pool threads busy-wait for the next piece of work by default: on two
+    # cores the second thread then burns a core the other stages need (sample, 2 threads:
+    # 41 ms of CPU per run spinning, 23 ms not, 21 ms with one thread; outputs identical).
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.log_severity_level = 3
+    for name, size in (sizes or {}).items():
+        options.add_free_dimension_override_by_name(name, size)
+    try:
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own untyped errors for bad files
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ModelError(f"{path} is not a loadable ONNX model: {first_line[:200]}") from None
 
 
 def _sigmoid(logit: np.ndarray) -> np.ndarray:

@@ -85,3 +85,33 @@ def test_network_mode_makes_objects_of_an_exported_heads_boxes(detector):
         height = np.clip(np.minimum(box[3], stronger[:, 3]) - np.maximum(box[1], stronger[:, 1]), 0, None)
         assert (width * height).max() >= 0.5 * (box[2] - box[0]) * (box[3] - box[1]), f"box {index} lost"
     assert len(stronger) == len(packet.detections)
+
+
+@pytest.mark.parametrize("width, size", [(0, (IN_W, IN_H)), (128, (128, 128)), (100, (96, 96)), (7, (16, 16))])
+def test_an_export_runs_at_the_input_width_asked_for(detector, width, size):
+    """The export's input size is free: the run time fixes it (the trained aspect, multiples of 16),
+    and the offsets, ground and head come out at that size, the same as the network gives there."""
+    import torch
+
+    path, net = detector
+    model = HeightNetModel(path, threads=1, detection_min_score=0.3, input_width=width)
+    assert (model.info.input_width, model.info.input_height) == size
+    image = np.random.default_rng(2).integers(0, 255, (96, 160, 3), dtype=np.uint8)
+    output = model.run(image)
+    assert output.offsets.shape == (size[1], size[0], 2)
+    with torch.no_grad():
+        offsets, *_ = net(torch.from_numpy(model.preprocess(image)))
+    assert np.abs(output.offsets - offsets[0].numpy().transpose(1, 2, 0)).max() < 1e-3
+
+
+def test_an_input_width_the_model_cannot_take_is_one_clear_error(detector, tmp_path):
+    from core.errors import ConfigError, ModelError
+    from media import make_tiny_contact_model
+
+    path, _ = detector
+    with pytest.raises(ConfigError, match="height.input_width"):
+        HeightNetModel(path, threads=1, input_width=-1)
+    fixed = make_tiny_contact_model(tmp_path / "fixed.onnx", np.zeros((48, 64, 2)), np.zeros(6))
+    assert HeightNetModel(fixed, threads=1, input_width=64).info.input_width == 64
+    with pytest.raises(ModelError, match="fixed 64x48 input, not 128 wide"):
+        HeightNetModel(fixed, threads=1, input_width=128)

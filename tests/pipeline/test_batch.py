@@ -323,6 +323,9 @@ def test_what_a_rerun_redoes(tmp_path):
     threads_only = Config()
     threads_only.height.threads, threads_only.output.progress = 1, False
     assert reason("/a.mp4", fp=config_fingerprint(threads_only)) is None
+    wider = Config()
+    wider.height.input_width = 640
+    assert reason("/a.mp4", fp=config_fingerprint(wider)) == "config changed"
     # Network-mode keys are not read in blobs mode (archives made before they existed stay done) ...
     blobs = Config()
     blobs.objects.score_person, blobs.objects.keep_motion_blobs = 0.9, True
