@@ -24,7 +24,7 @@ def main(args: argparse.Namespace, config) -> int:
     from stages.sink_common import height_camera_text
 
     model = model_path_from_config(args.model or config.height.model)
-    predictor = HeightPredictor(model, config.height.threads)
+    predictor = HeightPredictor(model, config.height.threads, config.height.input_width)
     camera = dataclasses.replace(config.camera, height_m=args.camera_height or config.camera.height_m,
                                  calibration=args.calibration or config.camera.calibration)
     written = predict_to_folder(Path(args.source), Path(args.out), predictor, every=max(1, args.every),

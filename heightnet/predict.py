@@ -22,7 +22,7 @@ from core.config import CameraConfig
 from core.errors import ConfigError, ModelError, SourceError
 from core.packets import CameraInfo, HeightCamera
 from heightnet.normalisation import normalise
-from stages.heightnet_model import SHIPPED_MODEL
+from stages.heightnet_model import model_file
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v"}
@@ -39,7 +39,7 @@ class HeightPrediction:
 
 
 def model_path_from_config(configured: str) -> Path:
-    path = Path(configured) if configured else SHIPPED_MODEL
+    path = model_file(configured)
     if not path.is_file():
         raise ModelError(f"height model not found: {path}")
     return path
@@ -53,11 +53,11 @@ class HeightPredictor:
     these commands); this class adds the RGB-image interface and the metres.
     """
 
-    def __init__(self, model_path: str | Path, threads: int = 2):
+    def __init__(self, model_path: str | Path, threads: int = 2, input_width: int = 0):
         from stages.contact_heights import ContactHeights
         from stages.heightnet_model import HeightNetModel
 
-        model = HeightNetModel(model_path, threads)
+        model = HeightNetModel(model_path, threads, input_width=input_width)
         self.model = model
         self.contact = ContactHeights() if model.info.contact else None
         """v2 models: the decoder, with the camera heads' running mean over this predictor's inputs."""

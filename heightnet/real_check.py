@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from heightnet.predict import SHIPPED_MODEL, HeightPredictor, iter_inputs
+from heightnet.predict import HeightPredictor, iter_inputs
+from stages.heightnet_model import SHIPPED_MODEL
 
 OXFORD = Path(__file__).resolve().parents[2] / "shared" / "real" / "oxford_towncentre"
 OXFORD_CAMERA_HEIGHT_M = 7.84

@@ -55,7 +55,7 @@ def config_fingerprint(config: Config) -> str:
     The model file's size and mtime are part of it, so retraining into the same path redoes
     the archive.
     """
-    from stages.heightnet_model import SHIPPED_MODEL
+    from stages.heightnet_model import model_file
 
     relevant = {name: dataclasses.asdict(getattr(config, name))
                 for name in ("capture", "ground", "height", "matching", "tracking", "camera", "output")}
@@ -74,7 +74,7 @@ def config_fingerprint(config: Config) -> str:
         for key in ("source", *NETWORK_OBJECTS_KEYS):
             objects.pop(key)
     relevant["tracking"].update(objects)
-    model = Path(config.height.model or SHIPPED_MODEL)
+    model = model_file(config.height.model)
     if model.is_file():
         stat = model.stat()
         relevant["model_file"] = [str(model.resolve()), stat.st_size, stat.st_mtime_ns]

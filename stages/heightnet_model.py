@@ -37,6 +37,12 @@ SHIPPED_V2_MODEL = SHIPPED_MODEL.with_name("heightnet_v2.onnx")
 """HeightNet v2 (ground-contact offsets, camera heads, detection head) as exported from the
 committed training state: ``height.model = "v2"``, opt-in while it trains."""
 NAMED_MODELS = {"int8": SHIPPED_INT8_MODEL, "v2": SHIPPED_V2_MODEL}
+
+
+def model_file(name: str | Path) -> Path:
+    """The file ``height.model`` names: "" = the shipped model, a name of ``NAMED_MODELS``, else a path."""
+    return NAMED_MODELS.get(str(name)) or (Path(name) if name else SHIPPED_MODEL)
+
 CONTACT_UNITS = "ground_contact_offsets"
 """HeightNet v2's units (heightnet/contact_export.py writes them)."""
 OUTPUT_UNITS = ("metres", "camera_height_fraction", CONTACT_UNITS)
@@ -197,7 +203,7 @@ class HeightNetModel:
 
     def __init__(self, model_path: str | Path = "", threads: int = 2,
                  detection_min_score: float = CONSTANTS.detection_min_score, input_width: int = 0):
-        path = NAMED_MODELS.get(str(model_path)) or (Path(model_path) if model_path else SHIPPED_MODEL)
+        path = model_file(model_path)
         if not path.is_file():
             raise ModelError(f"model file not found: {path}")
         if input_width < 0:

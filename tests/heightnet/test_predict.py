@@ -97,3 +97,11 @@ def test_predict_without_a_camera_says_which_flag_to_give(v2_model, tmp_path, ca
     assert error.count("\n") == 0 and "give --calibration FILE, or --camera-height M" in error
     with pytest.raises(ConfigError, match="--camera-height"):
         HeightPredictor(v2_model).predict(np.zeros((48, 64, 3), np.uint8))
+
+
+@pytest.mark.parametrize("configured", ["", "int8", "v2"])
+def test_the_model_named_in_the_config_is_the_file_the_run_would_load(configured):
+    from heightnet.predict import model_path_from_config
+    from stages.heightnet_model import NAMED_MODELS, SHIPPED_MODEL
+
+    assert model_path_from_config(configured) == NAMED_MODELS.get(configured, SHIPPED_MODEL)

@@ -8,7 +8,8 @@ OXFORD = Path(__file__).resolve().parents[2] / ".." / "shared" / "real" / "oxfor
 
 
 def test_shipped_model_puts_oxford_people_above_their_surroundings():
-    from heightnet.predict import SHIPPED_MODEL, HeightPredictor
+    from heightnet.predict import HeightPredictor
+    from stages.heightnet_model import SHIPPED_MODEL
     from heightnet.real_check import check_people
 
     if not (OXFORD / "oxford_snipped.mp4").is_file():

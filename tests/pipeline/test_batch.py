@@ -427,3 +427,22 @@ def test_second_batch_on_the_same_folder_is_refused(tmp_path, capsys):
         assert_clean_error(["batch", str(clip), "--out", str(tmp_path / "o")], "in use by another heightpipe batch",
                            capsys)
     assert os.path.exists(tmp_path / "o" / ".lock")
+
+
+def test_a_named_model_s_file_is_part_of_the_fingerprint(tmp_path, monkeypatch):
+    """height.model = "v2" names a shipped file: a new export there redoes the archive."""
+    import os
+
+    import stages.heightnet_model as models
+    from core.config import Config
+    from pipeline.batch_manifest import config_fingerprint
+
+    export = tmp_path / "heightnet_v2.onnx"
+    export.write_bytes(b"first export")
+    monkeypatch.setitem(models.NAMED_MODELS, "v2", export)
+    config = Config()
+    config.height.model = "v2"
+    before = config_fingerprint(config)
+    export.write_bytes(b"a later export")
+    os.utime(export, ns=(export.stat().st_atime_ns, export.stat().st_mtime_ns + 10**9))
+    assert config_fingerprint(config) != before
