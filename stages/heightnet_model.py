@@ -35,14 +35,8 @@ SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
 """The shipped model quantised to INT8 (heightnet/quantize.py): ``height.model = "int8"``."""
 SHIPPED_V2_MODEL = SHIPPED_MODEL.with_name("heightnet_v2.onnx")
 """HeightNet v2 (ground-contact offsets, camera heads, detection head) as exported from the
-committed training state: ``height.model = "v2"``, opt-in while it trains."""
+committed training state (690,000 images): ``height.model = "v2"``, opt-in while it trains."""
 NAMED_MODELS = {"int8": SHIPPED_INT8_MODEL, "v2": SHIPPED_V2_MODEL}
-
-
-def model_file(name: str | Path) -> Path:
-    """The file ``height.model`` names: "" = the shipped model, a name of ``NAMED_MODELS``, else a path."""
-    return NAMED_MODELS.get(str(name)) or (Path(name) if name else SHIPPED_MODEL)
-
 CONTACT_UNITS = "ground_contact_offsets"
 """HeightNet v2's units (heightnet/contact_export.py writes them)."""
 OUTPUT_UNITS = ("metres", "camera_height_fraction", CONTACT_UNITS)
@@ -50,6 +44,11 @@ CAMERA_HEAD_SIZE = 6
 """v2's ``camera`` output: pitch, roll, log focal length in image heights, their log-variances."""
 BOX_SIZE = 4
 """The detection head's ``box`` output: centre dx, dy from the cell centre, width, height."""
+
+
+def model_file(name: str | Path) -> Path:
+    """The file ``height.model`` names: "" = the shipped model, a name of ``NAMED_MODELS``, else a path."""
+    return NAMED_MODELS.get(str(name)) or (Path(name) if name else SHIPPED_MODEL)
 
 
 @dataclass(frozen=True)

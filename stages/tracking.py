@@ -232,7 +232,8 @@ class ObjectTracker:
                                                              result.unmatched_detections, detections)
         matched += [(r, c) for r, c in zip(leftover_tracks[0], leftover_detections[0])]
         carried, missed = self._carry_on(leftover_tracks[1], weak_detections)
-        self.idle_weak = [weak[c] for c in range(len(weak)) if c not in {c for _, c in carried}]
+        used = {c for _, c in carried}
+        self.idle_weak = [index for c, index in enumerate(weak) if c not in used]
 
         for row, col in matched:
             self._apply_detection(self.tracks[row], detections[col])
