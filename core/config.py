@@ -426,6 +426,12 @@ class TrainV2Config:
     """Decay of the weights' moving average, which is evaluated and exported (0 = the last step's)."""
     threads: int = 2
     """Torch CPU threads."""
+    device: str = "cpu"
+    """Where the network trains: "cpu", or "cuda" on a machine with an NVIDIA GPU (the state it
+    writes loads anywhere)."""
+    loader_workers: int = 0
+    """Processes preparing training pairs beside the training loop (0 = in the loop, as on the
+    2-core machine; a GPU is fed only with several). Same pairs, same order either way."""
     trunk: str = "plain"
     """'plain' (3x3 convolutions) or 'depthwise' (MobileNetV2 blocks; ~10x slower to train here)."""
     widths: list[int] = field(default_factory=lambda: [16, 32, 64, 128])

@@ -19,6 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue the run folder's checkpoint")
     parser.add_argument("--max-steps", type=int, default=0, metavar="N",
                         help="stop after N steps in this call (0 = run to train.steps)")
+    parser.add_argument("--max-minutes", type=float, default=0, metavar="M",
+                        help="stop after M minutes in this call, state written (0 = no limit; v2 only)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -97,13 +99,15 @@ def train_v2(args: argparse.Namespace, config) -> int:
         sequences = sorted(list_sequences(folder, split=split), key=lambda s: s.name)
         if not sequences:
             raise ConfigError(f"{folder} has no {split}-split sequences")
-        return build_contact_cache(sequences[:count or None], folder / ".contact_cache", progress=progress)
+        return build_contact_cache(sequences[:count or None], folder / ".contact_cache", progress=progress,
+                                   workers=v2.loader_workers)
 
     train_set = cached(v2.data, v2.data_command, "train", v2.sequences)
     held_out = cached(v2.test_data, v2.test_command, "test", v2.test_sequences) if v2.test_data else []
     try:
         result = train_contact(v2, train_set, held_out, resume=args.resume, progress=progress,
-                               max_steps=args.max_steps or None)
+                               max_steps=args.max_steps or None,
+                               max_seconds=args.max_minutes * 60 if args.max_minutes > 0 else None)
     except (FileExistsError, ValueError) as exc:
         raise ConfigError(str(exc)) from None
     out = Path(v2.out)

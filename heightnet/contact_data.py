@@ -60,22 +60,42 @@ class ContactSequence:
         return self.match_points[self.match_offsets[t]:self.match_offsets[t + 1]]
 
 
-def build_contact_cache(sequences: Sequence[Any], cache_dir: Path, progress: bool = False
-                        ) -> list[ContactSequence]:
-    """Decode every frame once (reused when present) and load the cache memory-mapped."""
+def build_contact_cache(sequences: Sequence[Any], cache_dir: Path, progress: bool = False,
+                        workers: int = 0) -> list[ContactSequence]:
+    """Decode every frame once (reused when present) and load the cache memory-mapped;
+    ``workers`` > 1 decodes sequences in that many processes (a many-core GPU machine)."""
     from tqdm import tqdm
 
     cache_dir = Path(cache_dir)
-    cached = []
-    for seq in tqdm(sequences, desc="cache", disable=not progress, dynamic_ncols=True):
-        folder = cache_dir / seq.name
-        done = folder / "done.json"
-        stamp = {"version": CACHE_VERSION, "frames": len(seq)}
-        if not (done.is_file() and json.loads(done.read_text()) == stamp):
-            _write_sequence(seq, folder)
-            done.write_text(json.dumps(stamp))
-        cached.append(load_contact_sequence(folder))
-    return cached
+    missing = [seq for seq in sequences if not _cached(seq, cache_dir / seq.name)]
+    bar = tqdm(total=len(missing), desc="cache", disable=not progress or not missing, dynamic_ncols=True)
+    if workers > 1 and len(missing) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers) as pool:
+            for _ in pool.map(_cache_sequence, missing, [cache_dir] * len(missing), chunksize=4):
+                bar.update(1)
+    else:
+        for seq in missing:
+            _cache_sequence(seq, cache_dir)
+            bar.update(1)
+    bar.close()
+    return [load_contact_sequence(cache_dir / seq.name) for seq in sequences]
+
+
+def _stamp(seq: Any) -> dict[str, int]:
+    return {"version": CACHE_VERSION, "frames": len(seq)}
+
+
+def _cached(seq: Any, folder: Path) -> bool:
+    done = folder / "done.json"
+    return done.is_file() and json.loads(done.read_text()) == _stamp(seq)
+
+
+def _cache_sequence(seq: Any, cache_dir: Path) -> None:
+    folder = Path(cache_dir) / seq.name
+    _write_sequence(seq, folder)
+    (folder / "done.json").write_text(json.dumps(_stamp(seq)))
 
 
 def synth_pinhole(camera: Any) -> PinholeCamera:
@@ -201,15 +221,19 @@ class ContactPairDataset:
         return 0, 0, width, height, False
 
     def __getitem__(self, item: int) -> dict[str, Any]:
-        """image 2x3xHxW, offsets 2x2xHxW (NaN = no label), height 2x1xHxW metres (NaN = no
-        label), ground 2x1xHxW, instance 2x1xHxW int64, K/R (3x3) and C (3) of the window's
-        camera, camera_target (3) with camera_valid, matches Kx4 with match_valid, and
-        camera_channels 2x2xHxW when enabled, window 2x4 (``position_window``), and with
-        detection det_centre 2x3xhxw, det_box 2x4xhxw, det_box_mask 2x1xhxw, det_ignore 2x1xhxw at 1/4
-        of the input."""
+        return self.sample(item, self.epoch)
+
+    def sample(self, item: int, epoch: int) -> dict[str, Any]:
+        """Pair ``item`` as drawn in ``epoch`` (window, flip and colours follow from seed, epoch
+        and item alone, so any process draws the same): image 2x3xHxW, offsets 2x2xHxW (NaN = no
+        label), height 2x1xHxW metres (NaN = no label), ground 2x1xHxW, instance 2x1xHxW int64,
+        K/R (3x3) and C (3) of the window's camera, camera_target (3) with camera_valid, matches
+        Kx4 with match_valid, and camera_channels 2x2xHxW when enabled, window 2x4
+        (``position_window``), and with detection det_centre 2x3xhxw, det_box 2x4xhxw,
+        det_box_mask 2x1xhxw, det_ignore 2x1xhxw at 1/4 of the input."""
         s, t = self.index[item]
         seq = self.sequences[s]
-        rng = np.random.default_rng([self.seed, self.epoch, item])
+        rng = np.random.default_rng([self.seed, epoch, item])
         x0, y0, w, h, cropped = self.window(rng, seq, t)
         flip = bool(self.augment and self.sampling.flip and rng.random() < 0.5)
         colour = colour_jitter(rng, Augmentation()) if self.augment and self.sampling.colour else None

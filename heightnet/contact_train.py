@@ -12,6 +12,10 @@ machine is not kept between them. So the run folder is meant to live in git:
 
 ``resume=True`` continues from ``checkpoint.pt`` with the same data order (a function of seed
 and epoch) and learning rate (a function of the step), so nothing else must survive.
+
+The same loop trains on a GPU (``device = "cuda"``) when a machine with one is lent for a few
+minutes: pairs are then prepared by ``loader_workers`` processes in the same order, and the
+state is written with CPU tensors, so it resumes on the 2-core machine as any other.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import torch
 
@@ -84,16 +88,20 @@ def group_learning_rates(step: int, config: TrainV2Config, warmup_from: int = 0)
 
 def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                   held_out: Sequence[ContactSequence] = (), resume: bool = False,
-                  progress: bool = True, max_steps: int | None = None) -> dict[str, Any]:
-    """Train until ``config.steps`` (``max_steps``: at most this many in this call)."""
+                  progress: bool = True, max_steps: int | None = None,
+                  max_seconds: float | None = None) -> dict[str, Any]:
+    """Train until ``config.steps`` (``max_steps``: at most this many in this call;
+    ``max_seconds``: stop, with the state written, once this much time has passed)."""
     from tqdm import tqdm
 
+    started = time.time()
     torch.set_num_threads(max(1, config.threads))
+    device = training_device(config.device)
     run_dir = Path(config.out)
     run_dir.mkdir(parents=True, exist_ok=True)
     checkpoint_path = run_dir / "checkpoint.pt"
     torch.manual_seed(config.seed)
-    net = ContactNet(architecture_of(config))
+    net = ContactNet(architecture_of(config)).to(device)   # before the optimiser: its state follows
     optimiser = torch.optim.AdamW(parameter_groups(net), lr=config.lr, weight_decay=config.weight_decay)
     ema = copy.deepcopy(net)
     step, images, warmup_from = 0, 0, 0
@@ -125,13 +133,11 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     sums: dict[str, float] = {}
     counted, tick, tick_images = 0, time.time(), 0
     bar = tqdm(total=end, initial=step, desc="train v2", disable=not progress, dynamic_ncols=True)
+    batches = pair_batches(dataset, config, step, end, per_epoch, device)
     try:
-        while step < end:
-            epoch, position = divmod(step, per_epoch)
-            dataset.epoch = epoch
-            order = epoch_order(config.seed, epoch, len(dataset))
-            items = order[position * config.batch_size:(position + 1) * config.batch_size]
-            batch = collate([dataset[int(i)] for i in items])
+        for batch in batches:
+            batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+            pairs = len(batch["image"])
             for group, lr in zip(optimiser.param_groups, group_learning_rates(step, config, warmup_from)):
                 group["lr"] = lr
             channels = batch["camera_channels"].flatten(0, 1) if "camera_channels" in batch else None
@@ -144,8 +150,9 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             optimiser.step()
             update_average(ema, net, config.ema_decay, DETECTION_HEAD if config.head_only else "")
             step += 1
-            images += 2 * len(items)
-            tick_images += 2 * len(items)
+            images += 2 * pairs
+            tick_images += 2 * pairs
+            out_of_time = max_seconds is not None and time.time() - started >= max_seconds
             values = {k: float(losses[k].detach()) for k in LOSS_FIELDS[:-1] if k in losses}
             values["mover_rmse_cm"] = _mover_rmse_cm(losses, batch)
             for k, v in values.items():
@@ -154,24 +161,105 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             counted += 1
             bar.update(1)
             bar.set_postfix(loss=f"{values['total']:.2f}", rmse_cm=f"{values['mover_rmse_cm']:.0f}")
-            if step % config.log_every == 0 or step == end:
+            if step % config.log_every == 0 or step == end or out_of_time:
                 rate = tick_images / max(1e-9, time.time() - tick)
                 log.write({"step": step, "images": images, "lr": f"{learning_rate(step - 1, config, warmup_from):.3g}",
                            **{k: f"{sums.get(k, float('nan')) / max(1, counted):.5f}" for k in LOSS_FIELDS},
                            "images_per_s": f"{rate:.2f}"})
                 sums, counted, tick, tick_images = {}, 0, time.time(), 0
-            if held_out and (step % config.eval_every == 0 or step == end):
-                scores = evaluate(ema, held_out, config.input_width, config.input_height)
+            if held_out and (step % config.eval_every == 0 or step == end or out_of_time):
+                scores = evaluate(_on_cpu(ema), held_out, config.input_width, config.input_height)
                 curve.write({"step": step, "images": images,
                              **{k: f"{v:.2f}" for k, v in scores_row(scores).items()}})
                 tick = time.time()   # evaluation time is not training throughput
-            if step % config.checkpoint_every == 0 or step == end:
+            if step % config.checkpoint_every == 0 or step == end or out_of_time:
                 save_state(checkpoint_path, net, optimiser, step, images, config, ema, warmup_from)
+            if out_of_time:
+                break
     finally:
+        batches.close()
         bar.close()
         log.close()
         curve.close()
     return {"step": step, "images": images, "net": net, "ema": ema}
+
+
+def training_device(name: str) -> torch.device:
+    """The configured device, or a one-line error where this machine has none of that kind."""
+    if name == "cpu":
+        return torch.device("cpu")
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError("train_v2.device = 'cuda' but this machine's torch sees no CUDA GPU")
+        torch.backends.cudnn.benchmark = True   # one input size throughout: pick the fastest kernels once
+        return torch.device("cuda")
+    raise ValueError(f"train_v2.device must be 'cpu' or 'cuda', got {name!r}")
+
+
+def pair_batches(dataset: ContactPairDataset, config: TrainV2Config, first_step: int, end: int,
+                 per_epoch: int, device: torch.device) -> Iterator[dict[str, torch.Tensor]]:
+    """The batches of steps ``first_step`` .. ``end`` - 1: step s takes the pairs at its place in
+    its epoch's order (``epoch_order``), so a run resumed at any step draws what it would have.
+    With ``loader_workers`` the same batches are prepared by processes ahead of the loop."""
+    steps = _StepPairs(config.seed, config.batch_size, per_epoch, len(dataset), first_step, end)
+    if config.loader_workers <= 0:
+        for keys in steps:
+            yield collate([dataset.sample(item, epoch) for epoch, item in keys])
+        return
+    import cv2
+    from torch.utils.data import DataLoader
+
+    # The loader processes are the parallelism: each resizes on one OpenCV thread. Set here, before
+    # they fork (set in a forked process, OpenCV waits for its parent's thread pool forever).
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        loader = DataLoader(_EpochPairs(dataset), batch_sampler=steps, num_workers=config.loader_workers,
+                            collate_fn=collate, pin_memory=device.type == "cuda", prefetch_factor=4)
+        yield from loader
+    finally:
+        cv2.setNumThreads(threads)
+
+
+class _StepPairs:
+    """Per step, the (epoch, pair) keys of its batch; iterable again (a DataLoader batch sampler)."""
+
+    def __init__(self, seed: int, batch_size: int, per_epoch: int, pairs: int, first_step: int, end: int):
+        self.seed, self.batch_size, self.per_epoch, self.pairs = seed, batch_size, per_epoch, pairs
+        self.first_step, self.end = first_step, end
+
+    def __len__(self) -> int:
+        return max(0, self.end - self.first_step)
+
+    def __iter__(self) -> Iterator[list[tuple[int, int]]]:
+        order_of, order = -1, None
+        for step in range(self.first_step, self.end):
+            epoch, position = divmod(step, self.per_epoch)
+            if epoch != order_of:
+                order_of, order = epoch, epoch_order(self.seed, epoch, self.pairs)
+            items = order[position * self.batch_size:(position + 1) * self.batch_size]
+            yield [(epoch, int(i)) for i in items]
+
+
+class _EpochPairs:
+    """``dataset`` indexed by (epoch, pair) keys, for loader processes that cannot share its epoch."""
+
+    def __init__(self, dataset: ContactPairDataset):
+        self.dataset = dataset
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, key: tuple[int, int]) -> dict[str, Any]:
+        epoch, item = key
+        return self.dataset.sample(item, epoch)
+
+
+def _on_cpu(net: torch.nn.Module) -> torch.nn.Module:
+    """``net`` itself on the CPU, else a CPU copy (the evaluation feeds NumPy frames)."""
+    if next(net.parameters()).device.type == "cpu":
+        return net
+    return copy.deepcopy(net).cpu()
 
 
 def update_average(ema: torch.nn.Module, net: torch.nn.Module, decay: float, prefix: str = "") -> None:
@@ -196,14 +284,22 @@ def save_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
     float16."""
     opt = optimiser.state_dict()
     # state_dict() hands out the live per-parameter dicts: build new ones, never edit those.
-    opt["state"] = {index: {key: _compact(key, value) for key, value in state.items()}
+    opt["state"] = {index: {key: _cpu(_compact(key, value)) for key, value in state.items()}
                     for index, state in opt["state"].items()}
     tmp = path.with_suffix(".tmp")
-    torch.save({"model": net.state_dict(), "ema": (ema or net).state_dict(), "optimiser": opt,
+    torch.save({"model": _cpu_weights(net), "ema": _cpu_weights(ema or net), "optimiser": opt,
                 "step": step, "images": images, "warmup_from": warmup_from,
                 "architecture": net.arch.to_dict(), "input_size": [config.input_width, config.input_height],
                 "config": dataclasses.asdict(config)}, tmp)
     tmp.replace(path)
+
+
+def _cpu_weights(net: torch.nn.Module) -> dict[str, torch.Tensor]:
+    return {name: value.cpu() for name, value in net.state_dict().items()}
+
+
+def _cpu(value: Any) -> Any:
+    return value.cpu() if isinstance(value, torch.Tensor) else value
 
 
 def _compact(key: str, value: Any) -> Any:

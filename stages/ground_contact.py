@@ -159,8 +159,8 @@ def torch_heights_from_offsets(offsets, K, R, C):
     import torch
 
     b, _, h, w = offsets.shape
-    v, u = torch.meshgrid(torch.arange(h, dtype=offsets.dtype), torch.arange(w, dtype=offsets.dtype),
-                          indexing="ij")
+    v, u = torch.meshgrid(torch.arange(h, dtype=offsets.dtype, device=offsets.device),
+                          torch.arange(w, dtype=offsets.dtype, device=offsets.device), indexing="ij")
     uv = torch.stack([u, v], 0)[None].expand(b, 2, h, w)
     Kinv = torch.linalg.inv(K.double()).to(offsets.dtype)
     M = (R.transpose(1, 2) @ Kinv)  # world ray = M @ [u, v, 1]

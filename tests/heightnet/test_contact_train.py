@@ -76,6 +76,44 @@ def test_resumed_training_equals_an_uninterrupted_run(contact_sequences, tmp_pat
         train_contact(small_config(tmp_path / "whole"), contact_sequences, progress=False)
 
 
+def test_loader_processes_train_exactly_as_the_loop_alone(contact_sequences, tmp_path):
+    """Pairs prepared by loader processes (a GPU machine's set-up) are the loop's own pairs in
+    the loop's order: the same weights after the same steps."""
+    alone = train_contact(small_config(tmp_path / "alone"), contact_sequences, progress=False)
+    loaded = train_contact(small_config(tmp_path / "loaded", loader_workers=2), contact_sequences,
+                           progress=False)
+    for a, b in zip(alone["net"].state_dict().values(), loaded["net"].state_dict().values()):
+        assert torch.equal(a, b)
+
+
+def test_a_time_limit_stops_with_the_state_written(contact_sequences, tmp_path):
+    result = train_contact(small_config(tmp_path / "run"), contact_sequences, progress=False, max_seconds=0)
+    assert result["step"] == 1   # the first step runs, then the limit is seen
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", map_location="cpu", weights_only=False)
+    assert state["step"] == 1
+    resumed = train_contact(small_config(tmp_path / "run"), contact_sequences, progress=False, resume=True)
+    assert resumed["step"] == 4
+
+
+def test_training_on_an_unavailable_device_is_one_clear_error(contact_sequences, tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA GPU")
+    with pytest.raises(ValueError, match="sees no CUDA GPU"):
+        train_contact(small_config(tmp_path / "run", device="cuda"), contact_sequences, progress=False)
+    with pytest.raises(ValueError, match="must be 'cpu' or 'cuda'"):
+        train_contact(small_config(tmp_path / "run2", device="tpu"), contact_sequences, progress=False)
+
+
+def test_cache_built_by_processes_equals_the_serial_cache(tmp_path):
+    sequences = fake_sequences(count=3, frames=2, width=64, height=48)
+    serial = build_contact_cache(sequences, tmp_path / "serial")
+    parallel = build_contact_cache(sequences, tmp_path / "parallel", workers=2)
+    for a, b in zip(serial, parallel):
+        assert a.name == b.name
+        assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.match_points, b.match_points)
+        assert np.array_equal(a.offsets, b.offsets, equal_nan=True)
+
+
 def test_resume_logs_each_step_once_after_a_stop_between_checkpoints(contact_sequences, tmp_path):
     config = small_config(tmp_path / "run")
     train_contact(config, contact_sequences, contact_sequences[:1], progress=False, max_steps=3)
