@@ -123,7 +123,9 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     per_epoch = max(1, len(dataset) // config.batch_size)
     loss_weights = loss_weights_of(config)
     end = config.steps if max_steps is None else min(config.steps, step + max_steps)
-    log = _CsvLog(run_dir / "log.csv", ["step", "images", "lr", *LOSS_FIELDS, "images_per_s"])
+    # waiting_share: of the time between log rows, the share spent waiting for the next batch
+    # (near 1: the pairs' preparation, not the network, bounds the rate; add loader_workers).
+    log = _CsvLog(run_dir / "log.csv", ["step", "images", "lr", *LOSS_FIELDS, "images_per_s", "waiting_share"])
     curve = _CsvLog(run_dir / "curve.csv", None)
     net.train()
     if config.head_only:
@@ -131,11 +133,13 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
         if progress:
             print("train_v2.head_only: the detection head trains alone; the rest keeps its averaged weights")
     sums: dict[str, float] = {}
-    counted, tick, tick_images = 0, time.time(), 0
+    counted, tick, tick_images, waited = 0, time.time(), 0, 0.0
     bar = tqdm(total=end, initial=step, desc="train v2", disable=not progress, dynamic_ncols=True)
     batches = pair_batches(dataset, config, step, end, per_epoch, device)
     try:
+        asked = time.time()
         for batch in batches:
+            waited += time.time() - asked
             batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
             pairs = len(batch["image"])
             for group, lr in zip(optimiser.param_groups, group_learning_rates(step, config, warmup_from)):
@@ -162,20 +166,21 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             bar.update(1)
             bar.set_postfix(loss=f"{values['total']:.2f}", rmse_cm=f"{values['mover_rmse_cm']:.0f}")
             if step % config.log_every == 0 or step == end or out_of_time:
-                rate = tick_images / max(1e-9, time.time() - tick)
+                elapsed = max(1e-9, time.time() - tick)
                 log.write({"step": step, "images": images, "lr": f"{learning_rate(step - 1, config, warmup_from):.3g}",
                            **{k: f"{sums.get(k, float('nan')) / max(1, counted):.5f}" for k in LOSS_FIELDS},
-                           "images_per_s": f"{rate:.2f}"})
-                sums, counted, tick, tick_images = {}, 0, time.time(), 0
+                           "images_per_s": f"{tick_images / elapsed:.2f}", "waiting_share": f"{waited / elapsed:.2f}"})
+                sums, counted, tick, tick_images, waited = {}, 0, time.time(), 0, 0.0
             if held_out and (step % config.eval_every == 0 or step == end or out_of_time):
                 scores = evaluate(_on_cpu(ema), held_out, config.input_width, config.input_height)
                 curve.write({"step": step, "images": images,
                              **{k: f"{v:.2f}" for k, v in scores_row(scores).items()}})
-                tick = time.time()   # evaluation time is not training throughput
+                tick, waited = time.time(), 0.0   # evaluation time is not training throughput
             if step % config.checkpoint_every == 0 or step == end or out_of_time:
                 save_state(checkpoint_path, net, optimiser, step, images, config, ema, warmup_from)
             if out_of_time:
                 break
+            asked = time.time()
     finally:
         batches.close()
         bar.close()

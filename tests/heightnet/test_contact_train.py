@@ -143,6 +143,8 @@ def test_training_logs_losses_and_the_held_out_curve(contact_sequences, tmp_path
     assert len(curve) == 3 and "rmse_cm" in curve[0]
     total = [float(row.split(",")[3]) for row in log[1:]]
     assert all(math.isfinite(v) for v in total)
+    rows = list(csv.DictReader((tmp_path / "run" / "log.csv").open()))
+    assert all(0.0 <= float(row["waiting_share"]) <= 1.0 for row in rows)
     net = ContactNet(architecture_of(small_config(tmp_path)))
     step, images, _ = load_state(tmp_path / "run" / "checkpoint.pt", net, None)
     assert (step, images) == (4, 16)
