@@ -29,7 +29,6 @@ import numpy as np
 from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
 from heightnet.data import Augmentation, apply_colour, colour_jitter, match_features, window_matches
 from heightnet.detection_targets import detection_targets, ignored_cells, window_boxes
-from heightnet.normalisation import normalise
 from synth.dataset import PARKED_VEHICLE_ID
 
 CACHE_VERSION = 1
@@ -225,12 +224,15 @@ class ContactPairDataset:
 
     def sample(self, item: int, epoch: int) -> dict[str, Any]:
         """Pair ``item`` as drawn in ``epoch`` (window, flip and colours follow from seed, epoch
-        and item alone, so any process draws the same): image 2x3xHxW, offsets 2x2xHxW (NaN = no
-        label), height 2x1xHxW metres (NaN = no label), ground 2x1xHxW, instance 2x1xHxW int64,
-        K/R (3x3) and C (3) of the window's camera, camera_target (3) with camera_valid, matches
-        Kx4 with match_valid, and camera_channels 2x2xHxW when enabled, window 2x4
-        (``position_window``), and with detection det_centre 2x3xhxw, det_box 2x4xhxw,
-        det_box_mask 2x1xhxw, det_ignore 2x1xhxw at 1/4 of the input."""
+        and item alone, so any process draws the same): image 2x3xHxW uint8 RGB (colours jittered,
+        not yet normalised), offsets 2x2xHxW float16 (NaN = no label), height 2x1xHxW metres
+        float16 (NaN = no label), ground 2x1xHxW uint8, instance 2x1xHxW int32, K/R (3x3) and C
+        (3) of the window's camera, camera_target (3) with camera_valid, matches Kx4 with
+        match_valid, and camera_channels 2x2xHxW when enabled, window 2x4 (``position_window``),
+        and with detection det_centre 2x3xhxw, det_box 2x4xhxw, det_box_mask 2x1xhxw, det_ignore
+        2x1xhxw at 1/4 of the input. Images and labels keep compact types (0.4 of the bytes in
+        float32: what loader processes copy) until ``contact_train.training_batch`` widens a
+        batch where the network runs."""
         s, t = self.index[item]
         seq = self.sequences[s]
         rng = np.random.default_rng([self.seed, epoch, item])
@@ -261,11 +263,11 @@ class ContactPairDataset:
                 off = off * np.float32([-1, 1])
             if colour is not None:
                 rgb = apply_colour(rgb, colour)
-            images.append(normalise(rgb))
-            offsets.append(np.ascontiguousarray(off.transpose(2, 0, 1)))
-            heights.append(hgt[None].astype(np.float32))
-            grounds.append(gnd[None].astype(np.float32))
-            instances.append(ins[None].astype(np.int64))
+            images.append(np.ascontiguousarray(rgb.transpose(2, 0, 1)))
+            offsets.append(np.ascontiguousarray(off.transpose(2, 0, 1)).astype(np.float16))
+            heights.append(hgt[None].astype(np.float16))
+            grounds.append(gnd[None].astype(np.uint8))
+            instances.append(ins[None].astype(np.int32))
         padded, valid = window_matches(seq.matches(t), (x0, y0, w, h), self.size, flip, rng, self.max_matches)
         sample = {"image": np.stack(images), "offsets": np.stack(offsets), "height": np.stack(heights),
                   "ground": np.stack(grounds), "instance": np.stack(instances),

@@ -52,16 +52,21 @@ class ContactLossWeights:
     detection: float = 1.0
 
 
+# Instance ids are stored as uint16 (contact_data's cache): below this bound.
+MAX_INSTANCES = 1 << 16
+
+
 def object_weights(instance: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Per-pixel weight 1/sqrt(pixels of its object) on ``mask``, 0 elsewhere (N x 1 x H x W)."""
-    weights = torch.zeros_like(mask, dtype=torch.float32)
-    for i in range(instance.shape[0]):
-        ids = instance[i][mask[i]]
-        if ids.numel() == 0:
-            continue
-        counts = torch.bincount(ids).float()
-        weights[i][mask[i]] = counts[ids].rsqrt()
-    return weights
+    """Per-pixel weight 1/sqrt(pixels of its object) on ``mask``, 0 elsewhere (N x 1 x H x W).
+
+    Counted for the whole batch at once, each image's ids in a range of their own: no per-image
+    loop, no size read back from a GPU (a loop over 64 images stalled a GPU step ~300 times)."""
+    n = instance.shape[0]
+    first = torch.arange(n, device=instance.device).view(n, *([1] * (instance.dim() - 1))) * MAX_INSTANCES
+    key = (first + instance.long()).flatten()
+    counts = torch.zeros(n * MAX_INSTANCES, dtype=torch.float32, device=instance.device)
+    counts.scatter_add_(0, key, mask.flatten().float())
+    return torch.where(mask, counts[key].view(mask.shape).clamp(min=1.0).rsqrt(), 0.0)
 
 
 def weighted_mean(values: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:

@@ -36,6 +36,7 @@ from heightnet.contact_data import ContactPairDataset, ContactSampling, ContactS
 from heightnet.contact_eval import evaluate, scores_row
 from heightnet.contact_losses import ContactLossWeights, contact_loss
 from heightnet.contact_model import ContactArchitecture, ContactNet
+from heightnet.normalisation import MEAN, STD
 from heightnet.train import collate, epoch_order
 
 LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "ground", "camera",
@@ -140,7 +141,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
         asked = time.time()
         for batch in batches:
             waited += time.time() - asked
-            batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+            batch = training_batch(batch, device)
             pairs = len(batch["image"])
             for group, lr in zip(optimiser.param_groups, group_learning_rates(step, config, warmup_from)):
                 group["lr"] = lr
@@ -199,6 +200,25 @@ def training_device(name: str) -> torch.device:
         torch.backends.cudnn.benchmark = True   # one input size throughout: pick the fastest kernels once
         return torch.device("cuda")
     raise ValueError(f"train_v2.device must be 'cpu' or 'cuda', got {name!r}")
+
+
+def training_batch(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
+    """A collated batch on ``device`` in the types the network and losses take: images
+    normalised (``normalisation.normalise``, bit for bit), labels widened to float32, instance
+    ids to int64. The dataset hands out compact types so that loader processes copy less."""
+    widened = {}
+    for key, value in batch.items():
+        value = value.to(device, non_blocking=True)
+        if key == "image":
+            shape = (3, 1, 1)
+            value = ((value.float() * (1.0 / 255.0) - value.new_tensor(MEAN, dtype=torch.float32).view(shape))
+                     / value.new_tensor(STD, dtype=torch.float32).view(shape))
+        elif key == "instance":
+            value = value.long()
+        elif value.dtype in (torch.float16, torch.uint8):
+            value = value.float()
+        widened[key] = value
+    return widened
 
 
 def pair_batches(dataset: ContactPairDataset, config: TrainV2Config, first_step: int, end: int,

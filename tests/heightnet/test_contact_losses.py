@@ -63,6 +63,22 @@ def test_focal_loss_is_lower_at_the_right_peak_and_box_l1_only_counts_weighted_c
     assert abs(float(box_l1(box, goal, mask)) - 2.0) < 1e-6
 
 
+def test_each_object_weighs_the_root_of_its_own_image_s_masked_pixels():
+    """Object ids repeat across images (each frame numbers its own movers): an object's pixels are
+    counted in its own image, and only those under the mask."""
+    instance = torch.zeros(3, 1, 4, 4, dtype=torch.int32)
+    instance[0, 0, :2, :2] = 1          # 4 pixels
+    instance[0, 0, 3, 3] = 2            # 1 pixel
+    instance[1, 0, :, :] = 1            # 16 pixels, 9 of them masked
+    mask = instance > 0
+    mask[1, 0, 3, :] = False
+    mask[1, 0, :3, 3] = False
+    weights = object_weights(instance, mask)
+    assert torch.allclose(weights[0, 0, 0, 0], torch.tensor(0.5)) and weights[0, 0, 3, 3] == 1.0
+    assert torch.allclose(weights[1][mask[1]], torch.tensor(1 / 3))
+    assert (weights[~mask] == 0).all() and (weights[2] == 0).all()
+
+
 def test_a_small_mover_called_ground_costs_as_much_as_a_large_area_of_ground_called_object():
     """Averaged over the frame, 4 wrong pixels of a small person would cost 1/64 of the frame's
     ground being wrong; weighted per object they cost more than a quarter of the frame wrong."""

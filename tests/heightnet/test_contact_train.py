@@ -17,7 +17,10 @@ from heightnet.contact_data import ContactPairDataset, ContactSampling, build_co
 from heightnet.contact_eval import evaluate
 from heightnet.contact_export import export_contact
 from core.config import TrainV2Config
-from heightnet.contact_train import architecture_of, learning_rate, load_state, train_contact
+from heightnet.contact_train import (architecture_of, learning_rate, load_state, train_contact,
+                                     training_batch)
+from heightnet.normalisation import normalise
+from heightnet.train import collate
 from heightnet.contact_model import ContactNet
 
 
@@ -84,6 +87,21 @@ def test_loader_processes_train_exactly_as_the_loop_alone(contact_sequences, tmp
                            progress=False)
     for a, b in zip(alone["net"].state_dict().values(), loaded["net"].state_dict().values()):
         assert torch.equal(a, b)
+
+
+def test_a_training_batch_is_widened_where_the_network_runs(contact_sequences):
+    """Pairs travel compact (uint8 images, float16 labels); the loop's batch is what the network
+    and losses always took: images normalised bit for bit as at inference, float32 labels."""
+    dataset = ContactPairDataset(contact_sequences, 64, 48, ContactSampling(detection=True), seed=3)
+    sample = dataset[0]
+    compact = (sample["image"].dtype, sample["offsets"].dtype, sample["instance"].dtype)
+    assert compact == (np.uint8, np.float16, np.int32)
+    batch = training_batch(collate([sample, dataset[1]]), torch.device("cpu"))
+    rgb = sample["image"][1].transpose(1, 2, 0)
+    assert np.array_equal(batch["image"][0, 1].numpy(), normalise(rgb))
+    assert batch["offsets"].dtype == batch["height"].dtype == batch["ground"].dtype == torch.float32
+    assert batch["instance"].dtype == torch.int64
+    assert np.array_equal(batch["height"][0].numpy(), sample["height"].astype(np.float32), equal_nan=True)
 
 
 def test_a_time_limit_stops_with_the_state_written(contact_sequences, tmp_path):
