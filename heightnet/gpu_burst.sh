@@ -20,7 +20,8 @@ say() { echo "[$(( SECONDS - start )) s] $*"; }
 
 mkdir -p "$out"
 cp heightnet/state/v2/checkpoint.pt heightnet/state/v2/log.csv heightnet/state/v2/curve.csv "$out"/
-# 320x240 beside 640x480 and 640x360: the held-out 320x240 renders are what the head misread.
+# 320x240 beside 640x480 and 640x360: the held-out 320x240 renders are what the head misread
+# (whether they cost the first burst its real-clip coverage is open: docs/results.md, 2026-12-04).
 for sequences in 400 800 1200 1600 2000 2400 2800 3200; do
     (( SECONDS - start < render_seconds )) || break
     say "rendering up to $sequences training cameras on $cores cores"
