@@ -5,7 +5,8 @@
 # written to OUT_DIR, whence it is copied back and committed like any other stop.
 #   [BURST_SIZES=WxH,...] bash heightnet/gpu_burst.sh OUT_DIR SECONDS [RENDER_SECONDS [DEVICE [TRAIN ARGS...]]]
 # TRAIN ARGS go to `heightpipe train` after the script's own (e.g. --set train_v2.head_only=true);
-# BURST_SIZES replaces the rendered sizes (default 640x480,640x360,320x240).
+# BURST_SIZES replaces the rendered sizes (default 640x480,640x360,320x240); PYTHON the
+# interpreter (default python3, the GPU machine's).
 # Rendering grows the set BURST_CHUNK (default 400) sequences at a time (finished sequences are
 # kept) until RENDER_SECONDS (default 160) have passed; the rest of SECONDS trains.
 # The batch is 8x the 2-core machine's (32 pairs); the learning rate is doubled (lr 0.002 before
@@ -20,7 +21,7 @@ sizes=${BURST_SIZES:-640x480,640x360,320x240}
 chunk=${BURST_CHUNK:-400}
 start=$SECONDS
 cores=$(nproc)
-hp() { python3 -m pipeline.cli "$@"; }
+hp() { "${PYTHON:-python3}" -m pipeline.cli "$@"; }
 say() { echo "[$(( SECONDS - start )) s] $*"; }
 
 mkdir -p "$out"
@@ -36,7 +37,7 @@ done
 left=$(( budget - (SECONDS - start) - 60 ))   # cache, loader start-up and the last write
 if (( left < 60 )); then say "no time left to train"; exit 1; fi
 say "training for $left s on $device"
-hp train --resume --out "$out" --no-progress --max-minutes "$(python3 -c "print($left / 60)")" \
+hp train --resume --out "$out" --no-progress --max-minutes "$(( left / 60 )).$(( left % 60 * 10 / 60 ))" \
     --set train_v2.data=data/burst_train --set 'train_v2.test_data=""' --set "train_v2.device=\"$device\"" \
     --set "train_v2.loader_workers=$(( cores > 2 ? cores - 2 : 1 ))" --set train_v2.batch_size=32 \
     --set train_v2.lr=0.002 --set train_v2.head_only=false --set train_v2.checkpoint_every=250 \
