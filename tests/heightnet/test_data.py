@@ -1,8 +1,10 @@
 import json
 
+import cv2
 import numpy as np
+import pytest
 
-from heightnet.data import Augmentation, PairDataset, match_features
+from heightnet.data import Augmentation, PairDataset, apply_colour, match_features
 from heightnet.losses import sample_at
 
 
@@ -70,3 +72,19 @@ def test_dataset_hash_names_every_dataset_a_model_was_trained_on(tmp_path):
     assert dataset_hash(a) == dataset_hash([a])
     assert dataset_hash([a, b]) not in (dataset_hash(a), dataset_hash(b))
     assert dataset_hash([a, b], {"seed": 0}) != dataset_hash([a, b], {"seed": 1})
+
+
+@pytest.mark.parametrize("params", [[1.0, 1.0, 1.0], [1.25, 0.75, 1.3], [0.75, 1.25, 0.7], [1.2, 1.2, 0.0]])
+def test_colour_jitter_is_the_three_steps_in_one_colour_matrix(params):
+    """Brightness, contrast about the mean, saturation about each pixel's grey, clipped: the one
+    OpenCV pass agrees with the steps done in floats to one grey level, flipped views included."""
+    rgb = cv2.GaussianBlur(np.random.default_rng(1).integers(0, 256, (60, 80, 3), dtype=np.uint8), (5, 5), 1)
+    brightness, contrast, saturation = params
+    x = rgb.astype(np.float64) * brightness
+    x = (x - x.mean()) * contrast + x.mean()
+    grey = x.mean(axis=2, keepdims=True)
+    steps = np.clip((x - grey) * saturation + grey, 0, 255).astype(np.uint8)
+    for image, expected in ((rgb, steps), (rgb[:, ::-1], steps[:, ::-1])):
+        got = apply_colour(image, params)
+        assert got.dtype == np.uint8 and got.shape == image.shape
+        assert np.abs(got.astype(int) - expected.astype(int)).max() <= 1
