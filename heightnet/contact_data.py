@@ -197,7 +197,6 @@ class ContactPairDataset:
         self.max_matches = max_matches
         self.seed = seed
         self.augment = augment
-        self.epoch = 0
 
     def __len__(self) -> int:
         return len(self.index)
@@ -220,7 +219,8 @@ class ContactPairDataset:
         return 0, 0, width, height, False
 
     def __getitem__(self, item: int) -> dict[str, Any]:
-        return self.sample(item, self.epoch)
+        """Pair ``item`` as drawn in the first epoch (``sample`` draws it in any)."""
+        return self.sample(item, 0)
 
     def sample(self, item: int, epoch: int) -> dict[str, Any]:
         """Pair ``item`` as drawn in ``epoch`` (window, flip and colours follow from seed, epoch

@@ -158,6 +158,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             images += 2 * pairs
             tick_images += 2 * pairs
             out_of_time = max_seconds is not None and time.time() - started >= max_seconds
+            last = step == end or out_of_time
             values = {k: float(losses[k].detach()) for k in LOSS_FIELDS[:-1] if k in losses}
             values["mover_rmse_cm"] = _mover_rmse_cm(losses, batch)
             for k, v in values.items():
@@ -166,18 +167,18 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             counted += 1
             bar.update(1)
             bar.set_postfix(loss=f"{values['total']:.2f}", rmse_cm=f"{values['mover_rmse_cm']:.0f}")
-            if step % config.log_every == 0 or step == end or out_of_time:
+            if step % config.log_every == 0 or last:
                 elapsed = max(1e-9, time.time() - tick)
                 log.write({"step": step, "images": images, "lr": f"{learning_rate(step - 1, config, warmup_from):.3g}",
                            **{k: f"{sums.get(k, float('nan')) / max(1, counted):.5f}" for k in LOSS_FIELDS},
                            "images_per_s": f"{tick_images / elapsed:.2f}", "waiting_share": f"{waited / elapsed:.2f}"})
                 sums, counted, tick, tick_images, waited = {}, 0, time.time(), 0, 0.0
-            if held_out and (step % config.eval_every == 0 or step == end or out_of_time):
+            if held_out and (step % config.eval_every == 0 or last):
                 scores = evaluate(_on_cpu(ema), held_out, config.input_width, config.input_height)
                 curve.write({"step": step, "images": images,
                              **{k: f"{v:.2f}" for k, v in scores_row(scores).items()}})
                 tick, waited = time.time(), 0.0   # evaluation time is not training throughput
-            if step % config.checkpoint_every == 0 or step == end or out_of_time:
+            if step % config.checkpoint_every == 0 or last:
                 save_state(checkpoint_path, net, optimiser, step, images, config, ema, warmup_from)
             if out_of_time:
                 break
