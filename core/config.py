@@ -127,6 +127,10 @@ class ObjectsConfig:
     confirmed track it overlaps (IoU >= 0.5 with its prediction) but never starts one (ByteTrack's
     low-score round): a walker whose score dips for a few frames keeps his track. At or above the
     class thresholds: off."""
+    motion_ends: bool = False
+    """Network mode: a moving box's geometry points follow its foreground: where the object's
+    moving pixels go on past the box's bottom (top) under the box's middle, its foot (crown) is
+    where they stop (``stages.network_objects.motion_ends``); the box itself stays the network's."""
     keep_motion_blobs: bool = False
     """Network mode: a moving blob that no network box covers is an object too (its class from its
     shape); without it only blobs a quarter of the frame tall or taller are (the head misses most of those)."""
@@ -545,7 +549,7 @@ MOVED_KEYS = {("tracking", name): "objects" for name in (
 """(old section, key) -> the section that holds the key now (object extraction left [tracking];
 keys added to [objects] since were never in [tracking])."""
 NETWORK_OBJECTS_KEYS = ("score_person", "score_cyclist", "score_vehicle", "score_motion", "moving_share",
-                        "motion_contrast", "continue_score", "keep_motion_blobs")
+                        "motion_contrast", "continue_score", "motion_ends", "keep_motion_blobs")
 """[objects] keys that only ``source = "network"`` reads."""
 
 

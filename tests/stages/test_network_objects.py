@@ -18,7 +18,7 @@ from stages.geometry import GeometryMeasurer
 from stages.height_inference import HeightEstimator
 from stages.heightnet_model import HeightNetModel
 from stages.merged_blobs import split_by_predictions
-from stages.network_objects import check_classes, class_thresholds, min_score, network_objects
+from stages.network_objects import check_classes, class_thresholds, min_score, motion_ends, network_objects
 from stages.object_extraction import ObjectExtractor
 
 WIDTH, HEIGHT = 320, 240
@@ -267,6 +267,50 @@ def test_a_box_reaching_the_image_edge_is_cut_there(box, touches, top_cut, foot_
     assert 0 <= detection.box[0] and detection.box[0] + detection.box[2] <= WIDTH
     assert detection.box[1] + detection.box[3] <= HEIGHT
     assert (detection.heights[NETWORK].noise_m == np.inf) == top_cut
+
+
+# ------------------------------------------------------------------ the ends from motion
+
+BOX = np.array([100.0, 80.4, 120.0, 139.6])
+"""x0, y0, x1, y1 of a walker's box that ends short of the crown (row 70) and the soles (row 160)."""
+
+
+def walker_motion(top: int = 70, bottom: int = 160, gap_row: int | None = None) -> np.ndarray:
+    """A walker's foreground: a body 20 px wide down to row 120, then two legs 4 px wide."""
+    foreground = np.zeros((HEIGHT, WIDTH), bool)
+    foreground[top:120, 100:120] = True
+    foreground[120:bottom, 104:108] = foreground[120:bottom, 112:116] = True
+    if gap_row is not None:
+        foreground[gap_row] = False
+    return foreground
+
+
+@pytest.mark.parametrize("foreground, ends", [
+    (walker_motion(), (70, 160)),                           # out to the crown and the soles
+    (np.zeros((HEIGHT, WIDTH), bool), (80.4, 139.6)),       # still: the box's own ends
+    (walker_motion(top=78, bottom=200), (78, 169)),         # at most half the box's height below
+    (walker_motion(top=40), (66, 160)),                     # ... and a quarter above
+    (walker_motion(gap_row=140), (70, 139.6)),              # the row next to the end does not move
+    (walker_motion(gap_row=150), (70, 150)),                # a gap ends the run
+])
+def test_a_moving_box_ends_where_its_motion_ends(foreground, ends):
+    moved = motion_ends(foreground, BOX)
+    assert moved[[0, 2]] == pytest.approx(BOX[[0, 2]]) and moved[[1, 3]] == pytest.approx(ends)
+
+
+def test_motion_ends_move_the_geometry_points_not_the_box():
+    heights = np.zeros((HEIGHT, WIDTH), np.float32)
+    heights[70:160, 100:120] = np.linspace(1.8, 0.05, 90, dtype=np.float32)[:, None]
+    config = dataclasses.replace(NETWORK_MODE, motion_ends=True)
+    for use, ends in ((False, (80.4, 139.6)), (True, (70, 160))):
+        (detection,) = network_objects(found(("person", 0.9, tuple(BOX))), dataclasses.replace(config, motion_ends=use),
+                                       0.1, heights, heights < 0.1, walker_motion(), EDGE)
+        assert detection.box == (100.0, 80.0, 20.0, 60.0)
+        assert (detection.top_xy[1], detection.foot_xy[1]) == pytest.approx(ends)
+    # Motion running off the frame's bottom: the foot is cut there, as a box reaching it is.
+    (cut,) = network_objects(found(("person", 0.9, (100, 180, 120, 230))), config, 0.1, heights, heights < 0.1,
+                             walker_motion(top=170, bottom=HEIGHT), EDGE)
+    assert cut.foot_xy[1] == HEIGHT and cut.foot_cut and not cut.top_cut
 
 
 # ------------------------------------------------------------------ later stages keep the network's word
