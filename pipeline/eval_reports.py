@@ -48,7 +48,8 @@ def format_report(report: dict) -> str:
     lines = [
         f"eval-tracks: {len(report['sequences'])} sequences, {report['frames']} frames, "
         f"heights from {report.get('heights', '?')}"
-        f"{' + geometry' if report.get('geometry') else ''}; don't-care: visibility < "
+        f"{' + geometry' if report.get('geometry') else ''}"
+        f"{', camera height only' if report.get('camera') == 'height' else ''}; don't-care: visibility < "
         f"{report['min_visibility']}, boxes < {report['min_box_px']:g} px, unclaimed boxes on parked vehicles",
         f"  HOTA {mot['HOTA']:.3f}  (DetA {mot['DetA']:.3f}, AssA {mot['AssA']:.3f})  "
         f"MOTA {mot['MOTA']:.3f}  IDF1 {mot['IDF1']:.3f}  ID switches {mot['IDSW']}  "

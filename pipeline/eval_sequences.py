@@ -1,8 +1,9 @@
 """Running ``heightpipe run``'s stages over one generator sequence, keeping what evaluation needs.
 
 A sequence of a synthetic dataset (``synth.dataset``) goes through the same stage chain as a
-video (``pipeline.stage_chain``), with the dataset's exact camera; each frame leaves a
-``FrameRecord``: the ground-truth boxes, the confirmed tracks and the detections.
+video (``pipeline.stage_chain``), with the dataset's exact camera or, as most users have it, its
+mounting height alone (``known = "height"``); each frame leaves a ``FrameRecord``: the
+ground-truth boxes, the confirmed tracks and the detections.
 """
 
 from __future__ import annotations
@@ -107,16 +108,29 @@ def dont_care_region(semantic: np.ndarray) -> np.ndarray | None:
     return np.packbits(parked, axis=1) if parked.any() else None
 
 
-def camera_info(sequence):
+CAMERA_KNOWN = ("true", "height")
+"""What a run is told of a sequence's camera: its exact pose and lens, or its height only."""
+
+
+def camera_info(sequence, config: Config | None = None, known: str = "true"):
+    """The sequence's camera as the run knows it: exact (``"true"``), or, as ``heightpipe run
+    --camera-height H`` would have it, the height alone with ``[camera]``'s default lens
+    (``"height"``: no pose, no geometry; v2 learns pitch and focal length with its camera heads)."""
     from core.packets import CameraInfo
+    from stages.calibration import camera_for_run
 
     camera = sequence.meta.camera
+    if known == "height":
+        told = replace(config.camera, height_m=float(camera.height_m), pitch_deg=0.0, roll_deg=0.0, calibration="")
+        return camera_for_run(told, camera.width, camera.height)
+    if known != "true":
+        raise ValueError(f"camera known as {known!r}, not one of {CAMERA_KNOWN}")
     return CameraInfo(width=camera.width, height=camera.height, K=np.asarray(camera.K, float),
                       R=np.asarray(camera.R, float), t=np.asarray(camera.t, float).reshape(3),
                       height_m=float(camera.height_m), source="calibration")
 
 
-def build_eval_chain(sequence, config: Config, heights: str, geometry: bool):
+def build_eval_chain(sequence, config: Config, heights: str, geometry: bool, known: str = "true"):
     """``heightpipe run``'s stages for a generator sequence (``pipeline.stage_chain``).
 
     With ``heights="oracle"`` the true height and ground maps stand in for the network, and the
@@ -129,7 +143,7 @@ def build_eval_chain(sequence, config: Config, heights: str, geometry: bool):
         # per-object bias for the height filter to learn.
         config = replace(config, camera=replace(config.camera, rescale_network=False),
                          tracking=replace(config.tracking, network_bias_share=0.0))
-    return build_stage_chain(config, camera_info(sequence),
+    return build_stage_chain(config, camera_info(sequence, config, known),
                              heights=OracleHeights(sequence) if heights == "oracle" else None,
                              geometry=geometry)
 
@@ -146,16 +160,17 @@ def prime_sequence_background(sequence, chain, config: Config) -> None:
                                              config.objects.background_prime_s)])
 
 
-def sequence_packets(sequence, chain, max_frames: int = 0):
+def sequence_packets(sequence, chain, max_frames: int = 0, camera=None):
     """Each frame of a generator sequence through the stage chain: yields (truth frame, packet).
 
-    The stages are closed when the frames run out or the caller closes the generator.
+    ``camera`` is the run's (``camera_info``; the exact one when None). The stages are closed
+    when the frames run out or the caller closes the generator.
     """
     import cv2
 
     from core.packets import Frame, FramePacket
 
-    camera = camera_info(sequence)
+    camera = camera_info(sequence) if camera is None else camera
     count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
     try:
         for index in range(count):
@@ -167,16 +182,18 @@ def sequence_packets(sequence, chain, max_frames: int = 0):
 
 
 def run_sequence(sequence, config: Config, heights: str = "model", geometry: bool = True,
-                 max_frames: int = 0, record: Path | None = None) -> SequenceRun:
-    """Runs the tracking pipeline over one generator sequence and keeps what evaluation needs."""
+                 max_frames: int = 0, record: Path | None = None, known: str = "true") -> SequenceRun:
+    """Runs the tracking pipeline over one generator sequence and keeps what evaluation needs
+    (``known``: what the run is told of the camera, ``CAMERA_KNOWN``)."""
     meta = sequence.meta
     run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
-    chain = build_eval_chain(sequence, config, heights, geometry)
+    chain = build_eval_chain(sequence, config, heights, geometry, known)
     prime_sequence_background(sequence, chain, config)
     sink = _open_recording(record, config, sequence.name) if record else None
     start = time.perf_counter()
     try:
-        with contextlib.closing(sequence_packets(sequence, chain, max_frames)) as packets:
+        camera = camera_info(sequence, config, known)
+        with contextlib.closing(sequence_packets(sequence, chain, max_frames, camera)) as packets:
             for truth_frame, packet in packets:
                 if sink is not None:
                     sink.write(packet)

@@ -39,7 +39,7 @@ from core.config import Config
 from core.errors import HeightpipeError
 from pipeline.eval_metrics import evaluate
 from pipeline.eval_reports import format_misses, format_report, json_default, plot_height_series
-from pipeline.eval_sequences import run_sequence
+from pipeline.eval_sequences import CAMERA_KNOWN, run_sequence
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sequences", nargs="+", metavar="NAME", help="only these sequences")
     parser.add_argument("--heights", choices=("model", "oracle"), default="model",
                         help="height maps from the network (default) or the ground truth (oracle)")
+    parser.add_argument("--camera", choices=CAMERA_KNOWN, default="true",
+                        help="what the run is told of each camera: its exact pose and lens (default), or its "
+                             "height only, as `heightpipe run --camera-height H` (most users' case)")
     parser.add_argument("--no-geometry", action="store_true",
                         help="do not fuse the calibrated-camera geometry height")
     parser.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
@@ -91,7 +94,7 @@ def main(args: argparse.Namespace, config: Config) -> int:
     for index, sequence in enumerate(sequences):
         record_path = Path(args.record) if (args.record and index == 0) else None
         run = run_sequence(sequence, config, heights=args.heights, geometry=not args.no_geometry,
-                           max_frames=args.max_frames, record=record_path)
+                           max_frames=args.max_frames, record=record_path, known=args.camera)
         runs.append(run)
         print(f"  {sequence.name}: {len(run.frames)} frames, {run.fps:.1f} fps", file=sys.stderr)
         if index == 0 and args.plot:
@@ -99,7 +102,9 @@ def main(args: argparse.Namespace, config: Config) -> int:
     report = evaluate(runs, min_visibility=args.min_visibility, min_frames=args.min_frames,
                       min_box_px=args.min_box_px)
     report["heights"] = args.heights
-    report["geometry"] = not args.no_geometry
+    # Geometry needs the camera's pose: told its height alone, the run has none to fuse.
+    report["geometry"] = not args.no_geometry and args.camera == "true"
+    report["camera"] = args.camera
     report["wall_s"] = round(time.perf_counter() - start, 1)
     print(format_report(report))
     if args.misses:

@@ -10,6 +10,12 @@ from pipeline.runner import RunSummary
 from stages.objects_table import ObjectRow
 from stages.sink_common import camera_state_text
 
+HEIGHT_ONLY_HINT = ("with only the camera height, HeightNet v2 measures about twice as close (held-out scenes: "
+                    "people 25 cm off against 61; README, 'Your own camera'): --set height.model=v2 "
+                    "--set objects.source=network")
+"""Said when a v1 model ran with the camera height alone: the case v2's camera heads were built
+for (docs/results.md, 2026-12-04 eighth session)."""
+
 
 def _size(path) -> str:
     size = path.stat().st_size if path.exists() else 0
@@ -48,6 +54,8 @@ def format_summary(summary: RunSummary) -> str:
     if summary.dropped_frames:
         lines.append(f"  live source: {summary.dropped_frames} frames dropped while the pipeline was busy")
     lines.append(f"  camera: {camera_state_text(summary.camera_source, summary.height_camera)}")
+    if summary.camera_source == "camera-height" and summary.height_camera is None:
+        lines.append(f"  hint: {HEIGHT_ONLY_HINT}")
     lines.append(f"  tracks: {tracks_line(summary.objects.sorted_rows())}")
     if summary.events or summary.webhook:
         lines.append(f"  events: {summary.events} height-rule firings"

@@ -192,10 +192,11 @@ def motion_ends(foreground: np.ndarray, box: np.ndarray) -> np.ndarray:
     stops: rows past each end are followed while at least ``ends_row_share`` of the box's middle
     half of columns is foreground, up to ``ends_reach_below`` / ``ends_reach_above`` of its height.
 
-    Why: the head's boxes end short of people's soles and under their crowns (generator dev set:
-    tracked people 17 cm off with the box's ends, 12 cm with these; Oxford's near walkers, boxes
-    up to 60 px short of the feet: docs/results.md 2026-12-04 eighth session), and the geometry
-    reads heights from those ends; a walker's moving pixels run on to his soles and crown. Only
+    Why: the head's boxes end short of people's soles and under their crowns (Oxford's near
+    walkers: up to 60 px short of the feet), and the geometry reads heights from those ends; a
+    walker's moving pixels run on to his soles and crown. Measured (docs/results.md, 2026-12-04
+    eighth session): tracked people 17.2 -> 12.5 cm on the dev set and Oxford's calibrated heights
+    27.6 -> 24.1 cm, but 8.7 -> 10.5 cm on held-out trk_val20, hence off by default. Only
     the geometry points move, not the box the tracker matches (taller boxes lost detections).
     Only outward: a still object has no motion to cut it by, and nothing is followed where the
     row next to the end does not move (a person in front, below the box, is not reached across

@@ -5,9 +5,10 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from core.config import Config
-from pipeline.eval_sequences import OracleHeights, build_eval_chain
+from pipeline.eval_sequences import OracleHeights, build_eval_chain, camera_info
 
 
 def test_true_heights_learn_no_network_scale():
@@ -22,3 +23,22 @@ def test_true_heights_learn_no_network_scale():
     assert chain.stage("geometry").network_scale is None
     assert chain.stage("tracking").tracker.config.network_bias_share == 0.0
     assert Config().tracking.network_bias_share > 0.0
+
+
+def _sequence():
+    camera = SimpleNamespace(width=320, height=240, K=np.diag([300.0, 300.0, 1.0]), R=np.eye(3),
+                             t=np.array([0.0, 0.0, 5.0]), height_m=5.0)
+    return SimpleNamespace(meta=SimpleNamespace(camera=camera))
+
+
+def test_a_run_told_only_the_camera_height_knows_no_pose_and_fuses_no_geometry():
+    """``eval-tracks --camera height``: what ``heightpipe run --camera-height H`` knows, no more."""
+    exact = camera_info(_sequence())
+    told = camera_info(_sequence(), Config(), "height")
+    assert exact.source == "calibration" and exact.R is not None
+    assert (told.source, told.height_m, told.R) == ("camera-height", 5.0, None)
+    assert told.K[1, 1] != 300.0                     # the default lens ([camera] fov_deg), not the true one
+    chain = build_eval_chain(_sequence(), Config(), "oracle", geometry=True, known="height")
+    assert "geometry" not in [name for name, _ in chain.stages]
+    with pytest.raises(ValueError, match="lens"):
+        camera_info(_sequence(), Config(), "lens")

@@ -35,6 +35,16 @@ def test_summary_says_which_camera_a_v2_network_decoded_with():
     assert "camera height given" in camera_line and "camera heads" in camera_line
     assert "pitch 18.2° ±1.1°" in camera_line and "focal 512 px ±6%" in camera_line
     assert "mean of 120 frames" in camera_line
+    assert "hint" not in text
     given = HeightCamera("calibration", 7.84, 23.5, 0.4, 1800.0)
     text = format_summary(RunSummary(source="cam", camera_source="calibration", height_camera=given))
     assert "with the calibration file's camera (height 7.84 m, pitch 23.5°" in text and "±" not in text
+
+
+def test_a_v1_run_told_only_the_camera_height_is_pointed_to_v2():
+    """v2's camera heads were built for that case: the summary says how to use them."""
+    text = format_summary(RunSummary(source="cam", camera_source="camera-height"))
+    hint = next(line for line in text.splitlines() if line.startswith("  hint:"))
+    assert "--set height.model=v2 --set objects.source=network" in hint
+    for source in ("calibration", "self", "none"):
+        assert "hint" not in format_summary(RunSummary(source="cam", camera_source=source))
