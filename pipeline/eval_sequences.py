@@ -121,7 +121,8 @@ def camera_info(sequence, config: Config | None = None, known: str = "true"):
 
     camera = sequence.meta.camera
     if known == "height":
-        told = replace(config.camera, height_m=float(camera.height_m), pitch_deg=0.0, roll_deg=0.0, calibration="")
+        told = replace((config or Config()).camera, height_m=float(camera.height_m), pitch_deg=0.0,
+                       roll_deg=0.0, calibration="")
         return camera_for_run(told, camera.width, camera.height)
     if known != "true":
         raise ValueError(f"camera known as {known!r}, not one of {CAMERA_KNOWN}")

@@ -38,6 +38,7 @@ def test_a_run_told_only_the_camera_height_knows_no_pose_and_fuses_no_geometry()
     assert exact.source == "calibration" and exact.R is not None
     assert (told.source, told.height_m, told.R) == ("camera-height", 5.0, None)
     assert told.K[1, 1] != 300.0                     # the default lens ([camera] fov_deg), not the true one
+    assert camera_info(_sequence(), known="height").K[1, 1] == told.K[1, 1]   # the default config's
     chain = build_eval_chain(_sequence(), Config(), "oracle", geometry=True, known="height")
     assert "geometry" not in [name for name, _ in chain.stages]
     with pytest.raises(ValueError, match="lens"):
