@@ -6,7 +6,8 @@ once per mode, and compares the confirmed person tracks of ``PREFIX.tracks.csv``
 in this clip):
 
 * ``calibration``: ``--calibration calib_opencv.json`` (frames undistorted, geometry on);
-* ``camera-height``: ``--camera-height 7.84`` only (network height x camera height);
+* ``camera-height``: ``--camera-height 7.84`` only (HeightNet v2 by default, its camera heads giving
+  pitch and focal length; v1 with ``--set height.model=v1``: network height x camera height);
 * ``self``: ``heightpipe calibrate`` on the clip first (with the file's intrinsics only), then
   a run with the snippet it prints; a refusal is reported as such.
 

@@ -61,9 +61,11 @@ class GroundConfig:
 @dataclass
 class HeightConfig:
     model: str = ""
-    """ONNX model path ("" = the model shipped in stages/models/, "int8" = its INT8 quantisation,
-    "v2" = HeightNet v2); a v1 or a ground-contact (v2) export, told apart by its metadata (v2
-    needs the camera: README)."""
+    """ONNX model path, or a shipped model by name: "v1" (stages/models/), "int8" (its INT8
+    quantisation), "v2" (HeightNet v2); a v1 or a ground-contact (v2) export, told apart by its
+    metadata (v2 needs the camera: README). "" = the shipped model for what the run is told of its
+    camera (``model_for_camera``): v2 with its detection head when told only the camera height, v1
+    otherwise."""
     threads: int = 2
     """ONNX Runtime intra-op threads."""
     input_width: int = 0
@@ -605,6 +607,29 @@ def parse_override(text: str) -> dict[str, Any]:
     except tomllib.TOMLDecodeError:
         value = raw
     return {section: {key: value}}
+
+
+HEIGHT_ONLY_MODEL = "v2"
+"""The shipped model a run told only its camera's height uses (``model_for_camera``)."""
+
+
+def model_for_camera(config: Config) -> Config:
+    """The config a run uses: with ``height.model = ""`` and only the camera's height given (no
+    calibration file, no pitch), HeightNet v2 with its detection head finding the objects
+    (``objects.source = "network"``); otherwise ``config`` as it is.
+
+    Why: v2's camera heads learnt the pitch and focal length that case lacks. Told only the camera
+    height, tracked people were 25 cm off with v2 against 61 with v1 on 40 held-out generator
+    sequences, 11.6 against 37.5 cm on Oxford Town Centre (docs/results.md, 2026-12-04 eighth
+    session); with a full pose v1 and its blobs stay (Oxford: 10.5 cm against v2's 27.6). A model
+    named in the config (``v1``, ``v2``, a path) is used as named, with ``[objects]`` as given.
+    """
+    camera = config.camera
+    told_height_only = camera.height_m > 0 and camera.pitch_deg == 0.0 and not camera.calibration
+    if config.height.model or not told_height_only:
+        return config
+    return dataclasses.replace(config, height=dataclasses.replace(config.height, model=HEIGHT_ONLY_MODEL),
+                               objects=dataclasses.replace(config.objects, source="network"))
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:

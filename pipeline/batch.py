@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 from pipeline.batch_manifest import DONE, FAILED, INTERRUPTED
-from core.config import Config
+from core.config import Config, model_for_camera
 
 if TYPE_CHECKING:
     from pipeline.batch_engines import TaskResult, VideoTask, WorkerStatus
@@ -415,6 +415,7 @@ def main(args: argparse.Namespace, config: Config) -> int:
     from pipeline.run_command import apply_flags
 
     apply_flags(args, config)
+    config = model_for_camera(config)   # height.model = "": v2 when told only the camera height
     options = BatchOptions(
         out_dir=Path(args.out),
         engine=args.engine or config.batch.engine,

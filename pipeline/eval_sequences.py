@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.config import Config
+from core.config import Config, model_for_camera
 from core.packets import NETWORK
 from synth.dataset import COARSE_CLASS, PARKED_VEHICLE_ID
 
@@ -121,9 +121,7 @@ def camera_info(sequence, config: Config | None = None, known: str = "true"):
 
     camera = sequence.meta.camera
     if known == "height":
-        told = replace((config or Config()).camera, height_m=float(camera.height_m), pitch_deg=0.0,
-                       roll_deg=0.0, calibration="")
-        return camera_for_run(told, camera.width, camera.height)
+        return camera_for_run(told_height_only(sequence, config), camera.width, camera.height)
     if known != "true":
         raise ValueError(f"camera known as {known!r}, not one of {CAMERA_KNOWN}")
     return CameraInfo(width=camera.width, height=camera.height, K=np.asarray(camera.K, float),
@@ -131,13 +129,24 @@ def camera_info(sequence, config: Config | None = None, known: str = "true"):
                       height_m=float(camera.height_m), source="calibration")
 
 
+def told_height_only(sequence, config: Config | None = None):
+    """``[camera]`` as ``heightpipe run --camera-height H`` leaves it: the sequence's true height,
+    no pitch, no calibration file (the default lens)."""
+    return replace((config or Config()).camera, height_m=float(sequence.meta.camera.height_m), pitch_deg=0.0,
+                   roll_deg=0.0, calibration="")
+
+
 def build_eval_chain(sequence, config: Config, heights: str, geometry: bool, known: str = "true"):
     """``heightpipe run``'s stages for a generator sequence (``pipeline.stage_chain``).
 
     With ``heights="oracle"`` the true height and ground maps stand in for the network, and the
-    stages that correct the network's scale and bias are told there is none to correct.
+    stages that correct the network's scale and bias are told there is none to correct. Told only
+    the camera height, the network is the one such a run picks (``core.config.model_for_camera``).
     """
     from pipeline.stage_chain import build_stage_chain
+
+    if known == "height" and heights == "model":
+        config = model_for_camera(replace(config, camera=told_height_only(sequence, config)))
 
     if heights == "oracle":
         # True heights are metric: there is no network scale to learn (nor to doubt), nor a

@@ -10,11 +10,11 @@ from pipeline.runner import RunSummary
 from stages.objects_table import ObjectRow
 from stages.sink_common import camera_state_text
 
-HEIGHT_ONLY_HINT = ("with only the camera height, HeightNet v2 measures about twice as close (held-out scenes: "
-                    "people 25 cm off against 61; README, 'Your own camera'): --set height.model=v2 "
-                    "--set objects.source=network")
-"""Said when a v1 model ran with the camera height alone: the case v2's camera heads were built
-for (docs/results.md, 2026-12-04 eighth session)."""
+HEIGHT_ONLY_HINT = ("with only the camera height, HeightNet v2 (the default for it) measures about twice as close "
+                    "(held-out scenes: people 25 cm off against 61; README, 'Your own camera'): leave height.model "
+                    "empty, or --set height.model=v2 --set objects.source=network")
+"""Said when a v1 model was named for a run told only the camera height: the case v2's camera
+heads were built for (docs/results.md, 2026-12-04 eighth session)."""
 
 
 def _size(path) -> str:

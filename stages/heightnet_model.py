@@ -35,8 +35,9 @@ SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
 """The shipped model quantised to INT8 (heightnet/quantize.py): ``height.model = "int8"``."""
 SHIPPED_V2_MODEL = SHIPPED_MODEL.with_name("heightnet_v2.onnx")
 """HeightNet v2 (ground-contact offsets, camera heads, detection head) as exported from the
-committed training state (690,000 images): ``height.model = "v2"``, opt-in while it trains."""
-NAMED_MODELS = {"int8": SHIPPED_INT8_MODEL, "v2": SHIPPED_V2_MODEL}
+committed training state (690,000 images): ``height.model = "v2"``, and the model of a run told
+only its camera's height (``core.config.model_for_camera``)."""
+NAMED_MODELS = {"v1": SHIPPED_MODEL, "int8": SHIPPED_INT8_MODEL, "v2": SHIPPED_V2_MODEL}
 CONTACT_UNITS = "ground_contact_offsets"
 """HeightNet v2's units (heightnet/contact_export.py writes them)."""
 OUTPUT_UNITS = ("metres", "camera_height_fraction", CONTACT_UNITS)
@@ -47,7 +48,8 @@ BOX_SIZE = 4
 
 
 def model_file(name: str | Path) -> Path:
-    """The file ``height.model`` names: "" = the shipped model, a name of ``NAMED_MODELS``, else a path."""
+    """The file ``height.model`` names: "" = the shipped v1 model (``core.config.model_for_camera``
+    chose before: v2 for a run told only its camera's height), a name of ``NAMED_MODELS``, else a path."""
     return NAMED_MODELS.get(str(name)) or (Path(name) if name else SHIPPED_MODEL)
 
 

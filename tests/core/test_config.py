@@ -3,7 +3,7 @@ import tomllib
 
 import pytest
 
-from core.config import DEFAULT_CONFIG_PATH, Config, load_config, parse_override
+from core.config import DEFAULT_CONFIG_PATH, Config, load_config, model_for_camera, parse_override
 from core.errors import ConfigError
 
 
@@ -85,3 +85,21 @@ def test_a_moved_key_says_where_it_is_now(tmp_path, key):
 def test_missing_config_file(tmp_path):
     with pytest.raises(ConfigError, match="config file not found"):
         load_config(tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize("model, camera, expected", [
+    ("", {}, ("", "blobs")),                                              # nothing known: v1 (an assumed height)
+    ("", {"height_m": 6.4}, ("v2", "network")),                           # the camera height only: v2's case
+    ("", {"height_m": 6.4, "pitch_deg": 20.0}, ("", "blobs")),            # a full pose: v1 and blobs
+    ("", {"height_m": 6.4, "calibration": "cam.json"}, ("", "blobs")),    # a calibration file
+    ("v1", {"height_m": 6.4}, ("v1", "blobs")),                           # a named model is used as named
+    ("int8", {"height_m": 6.4}, ("int8", "blobs")),
+])
+def test_the_default_model_follows_what_the_run_knows_of_its_camera(model, camera, expected):
+    config = Config()
+    config.height.model = model
+    for key, value in camera.items():
+        setattr(config.camera, key, value)
+    chosen = model_for_camera(config)
+    assert (chosen.height.model, chosen.objects.source) == expected
+    assert (config.height.model, config.objects.source) == (model, "blobs")   # the given config is not changed

@@ -335,6 +335,20 @@ def test_a_v2_model_with_the_camera_height_says_the_heads_gave_the_rest(tmp_path
     assert "camera heads: pitch 22.9° ±7.8°" in camera_line and "mean of 5 frames" in camera_line
 
 
+@pytest.mark.parametrize("flags, v2", [
+    (["--camera-height", "5"], True),                                    # told only the height: v2's case
+    (["--camera-height", "5", "--set", "camera.pitch_deg=20"], False),   # a full pose: v1
+    (["--camera-height", "5", "--set", 'height.model="v1"'], False),     # named: as named, and a hint
+])
+def test_the_default_model_follows_what_the_run_is_told_of_its_camera(tmp_path, box_video, flags, v2):
+    result = heightpipe("run", box_video, "--out", tmp_path / "run", "--no-progress", "--rerun", "off",
+                        "--max-frames", "3", *flags)
+    assert result.returncode == 0, result.stderr
+    camera_line = next(line for line in result.stderr.splitlines() if line.startswith("  camera:"))
+    assert ("HeightNet v2 metres" in camera_line) == v2
+    assert ("  hint:" in result.stderr) == ("v1" in " ".join(flags))
+
+
 @pytest.fixture
 def detector_model(tmp_path):
     """The v2 model above with a declared detection head that always finds a person (score 0.95)
