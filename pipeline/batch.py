@@ -415,7 +415,8 @@ def main(args: argparse.Namespace, config: Config) -> int:
     from pipeline.run_command import apply_flags
 
     apply_flags(args, config)
-    config = model_for_camera(config)   # height.model = "": v2 when told only the camera height
+    # Resolved before the fingerprints are made (run_pipeline would resolve it again, the same).
+    config = model_for_camera(config)
     options = BatchOptions(
         out_dir=Path(args.out),
         engine=args.engine or config.batch.engine,

@@ -12,7 +12,7 @@ import signal
 import sys
 from pathlib import Path
 
-from core.config import Config, model_for_camera
+from core.config import Config
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -173,7 +173,6 @@ def main(args: argparse.Namespace, config: Config) -> int:
     from core.errors import ConfigError
 
     apply_flags(args, config)
-    config = model_for_camera(config)   # height.model = "": v2 when told only the camera height
     check_capture_limits(config)
     prefixes = source_prefixes(args.sources, args.out, config)
     if len(args.sources) == 1:

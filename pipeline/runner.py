@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
-from core.config import Config
+from core.config import Config, model_for_camera
 from core.packets import CameraInfo, HeightCamera
 from core.stage import Sink
 from pipeline.stage_chain import build_stage_chain, close_all, import_stages, load_height_model
@@ -210,7 +210,10 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     """Process one source end to end and return what happened; outputs go to PREFIX.*
 
     ``on_frame`` is called after every frame (batch workers report progress through it).
+    ``height.model = ""`` is resolved here by what the config tells of the camera
+    (``core.config.model_for_camera``): every caller, benchmarks too, runs what ``heightpipe run`` runs.
     """
+    config = model_for_camera(config)
     # The network, the stages' and the sinks' libraries first (~1.2 s): a live stream's frames
     # pile up from the moment it is opened, and those the run cannot catch up with are dropped.
     model = load_height_model(config)
