@@ -165,3 +165,13 @@ def test_misses_say_whether_detection_or_tracking_lost_an_object():
     assert misses["all"] == {"tracked": 1, "detected, no track": 1, "merged with others": 2,
                              "box off": 1, "not detected": 1}
     assert misses["class person"] == misses["all"] and sum(misses["box 40-80 px"].values()) == 6
+
+
+@pytest.mark.parametrize("heights, geometry, camera, header", [
+    ("model", True, "true", "heights from model + geometry; "),
+    ("model", False, "height", "heights from model, camera height only; "),
+])
+def test_the_report_says_what_the_runs_were_told_of_the_camera(heights, geometry, camera, header):
+    report = evaluate([_run([FrameRecord([_truth(1, 10)], [_out(7, 10)], [])])], use_trackeval=False)
+    report.update(heights=heights, geometry=geometry, camera=camera)
+    assert header in format_report(report).splitlines()[0]
