@@ -32,7 +32,11 @@ def output_names(net: ContactNet) -> list[str]:
     return ["offsets", "ground_logit", "camera"] + (["centre_logit", "box"] if net.arch.detection else [])
 
 
-def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int) -> dict[str, str]:
+def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int,
+                     camera_spread_scale: list[float] | None = None) -> dict[str, str]:
+    """The model's metadata; ``camera_spread_scale`` (measured by ``python -m heightnet.camera_fresh
+    --write``): how much wider the camera heads' errors on unseen cameras are than the spread they
+    report, per pitch, roll and log focal length (absent: not measured, the run takes 1)."""
     outputs = {
         "offsets": "du, dv in input pixels from each pixel to the image of its ground-contact point",
         "ground_logit": "ground-plane logit",
@@ -48,6 +52,8 @@ def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int)
         "heightpipe.architecture": json.dumps(net.arch.to_dict()),
         "heightpipe.trained_images": str(images_seen),
         "heightpipe.created": datetime.date.today().isoformat(),
+        **({"heightpipe.camera_spread_scale": json.dumps([round(float(v), 3) for v in camera_spread_scale])}
+           if camera_spread_scale is not None else {}),
     }
 
 
@@ -75,7 +81,8 @@ def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict
                       do_constant_folding=True, dynamo=False, dynamic_axes=free)
     model = onnx.load(str(tmp))
     del model.metadata_props[:]
-    for key, value in contact_metadata(net, width, height, int(state["images"])).items():
+    for key, value in contact_metadata(net, width, height, int(state["images"]),
+                                       state.get("camera_spread_scale")).items():
         entry = model.metadata_props.add()
         entry.key, entry.value = key, value
     onnx.checker.check_model(model)

@@ -306,10 +306,9 @@ class ContactNet(nn.Module):
         nn.init.zeros_(self.offset_head.weight)
         nn.init.zeros_(self.offset_head.bias)
 
-    def forward(self, image: torch.Tensor, camera_channels: torch.Tensor | None = None,
-                window: torch.Tensor | None = None):
-        """``window`` (B x 4, ``position_window``) says where each image lies in its source frame;
-        None = the whole frame, as at run time."""
+    def encode(self, image: torch.Tensor, camera_channels: torch.Tensor | None = None,
+               window: torch.Tensor | None = None) -> tuple[list[torch.Tensor], torch.Tensor]:
+        """The encoder's outputs (1/2 to 1/16) and the bottleneck after the context blocks."""
         x = image if camera_channels is None else torch.cat([image, camera_channels], 1)
         if self.arch.position:
             x = torch.cat([x, position_channels(image, window)], 1)
@@ -317,10 +316,15 @@ class ContactNet(nn.Module):
         for block in self.encoder:
             x = block(x)
             skips.append(x)
-        x = self.context(x)
+        return skips, self.context(x)
+
+    def forward(self, image: torch.Tensor, camera_channels: torch.Tensor | None = None,
+                window: torch.Tensor | None = None):
+        """``window`` (B x 4, ``position_window``) says where each image lies in its source frame;
+        None = the whole frame, as at run time."""
+        skips, x = self.encode(image, camera_channels, window)
         bottleneck = x
-        pooled = torch.cat([x.mean((2, 3)), x.amax((2, 3))], 1)
-        camera = self.camera_head(pooled)
+        camera = self.camera_head(camera_features(bottleneck))
         quarter = None
         for block, skip in zip(self.decoder, reversed(skips[:-1])):
             x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
@@ -339,6 +343,11 @@ class ContactNet(nn.Module):
         if self.detection_head is None:
             return offsets, ground, camera
         return (offsets, ground, camera, *self.detection_head(quarter, bottleneck))
+
+
+def camera_features(bottleneck: torch.Tensor) -> torch.Tensor:
+    """What the camera heads read: the bottleneck's mean and maximum over the image (B x 2C)."""
+    return torch.cat([bottleneck.mean((2, 3)), bottleneck.amax((2, 3))], 1)
 
 
 def count_parameters(net: nn.Module) -> int:

@@ -59,7 +59,7 @@ class HeightPredictor:
 
         model = HeightNetModel(model_path, threads, input_width=input_width)
         self.model = model
-        self.contact = ContactHeights() if model.info.contact else None
+        self.contact = ContactHeights(spread_scale=model.info.camera_spread_scale) if model.info.contact else None
         """v2 models: the decoder, with the camera heads' running mean over this predictor's inputs."""
         self.height_camera: HeightCamera | None = None
         """The camera of the last v2 prediction (what ``heightpipe predict`` reports)."""

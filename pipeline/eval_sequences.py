@@ -136,8 +136,9 @@ def told_height_only(sequence, config: Config | None = None):
                    roll_deg=0.0, calibration="")
 
 
-def build_eval_chain(sequence, config: Config, heights: str, geometry: bool, known: str = "true"):
-    """``heightpipe run``'s stages for a generator sequence (``pipeline.stage_chain``).
+def build_eval_chain(sequence, config: Config, heights: str, geometry: bool, known: str = "true", camera=None):
+    """``heightpipe run``'s stages for a generator sequence (``pipeline.stage_chain``), for
+    ``camera``, the run's (``camera_info``; made here when None).
 
     With ``heights="oracle"`` the true height and ground maps stand in for the network, and the
     stages that correct the network's scale and bias are told there is none to correct. Told only
@@ -153,7 +154,7 @@ def build_eval_chain(sequence, config: Config, heights: str, geometry: bool, kno
         # per-object bias for the height filter to learn.
         config = replace(config, camera=replace(config.camera, rescale_network=False),
                          tracking=replace(config.tracking, network_bias_share=0.0))
-    return build_stage_chain(config, camera_info(sequence, config, known),
+    return build_stage_chain(config, camera_info(sequence, config, known) if camera is None else camera,
                              heights=OracleHeights(sequence) if heights == "oracle" else None,
                              geometry=geometry)
 
@@ -197,12 +198,12 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
     (``known``: what the run is told of the camera, ``CAMERA_KNOWN``)."""
     meta = sequence.meta
     run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
-    chain = build_eval_chain(sequence, config, heights, geometry, known)
+    camera = camera_info(sequence, config, known)
+    chain = build_eval_chain(sequence, config, heights, geometry, known, camera)
     prime_sequence_background(sequence, chain, config)
     sink = _open_recording(record, config, sequence.name) if record else None
     start = time.perf_counter()
     try:
-        camera = camera_info(sequence, config, known)
         with contextlib.closing(sequence_packets(sequence, chain, max_frames, camera)) as packets:
             for truth_frame, packet in packets:
                 if sink is not None:

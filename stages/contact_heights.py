@@ -75,11 +75,14 @@ class ContactHeights:
     """Decodes each frame's offsets with the run's camera; holds the camera heads' running mean.
 
     One instance per camera and run: the average assumes every frame it sees is from one fixed
-    camera.
+    camera. ``spread_scale`` (the model's ``camera_spread_scale``) widens the spread the heads
+    report to what their errors are on cameras they never saw: learnt on the training cameras,
+    their log-variances said about half of it for pitch and focal length.
     """
 
-    def __init__(self, assumed_camera_ok: bool = False):
+    def __init__(self, assumed_camera_ok: bool = False, spread_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)):
         self.assumed_camera_ok = assumed_camera_ok
+        self.spread_scale = np.asarray(spread_scale, np.float64)
         self.heads = HeadsAverage()
 
     def decode(self, output: ModelOutput, camera: CameraInfo,
@@ -100,7 +103,7 @@ class ContactHeights:
     def _heads_camera(self, outputs: np.ndarray, camera: CameraInfo, in_w: int,
                       in_h: int) -> tuple[PinholeCamera, HeightCamera]:
         self.heads.add(outputs)
-        mean, std = self.heads.mean, self.heads.std
+        mean, std = self.heads.mean, self.heads.std * self.spread_scale
         if self.heads.frames == 0:  # nothing finite from the heads yet: this frame's, whatever it is
             mean, std = np.asarray(outputs[:3], np.float64), np.full(3, np.inf)
         K = input_intrinsics(camera, in_w, in_h) if camera.lens_from_file and camera.K is not None else None

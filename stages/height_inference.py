@@ -26,7 +26,8 @@ class HeightEstimator:
     def __init__(self, model: HeightNetModel, camera: CameraInfo | None = None,
                  assumed_camera_ok: bool = False):
         self.model = model
-        self.contact = ContactHeights(assumed_camera_ok) if model.info.contact else None
+        self.contact = (ContactHeights(assumed_camera_ok, model.info.camera_spread_scale)
+                        if model.info.contact else None)
         if self.contact is not None and camera is not None:
             camera_source(camera, assumed_camera_ok)
 

@@ -91,6 +91,10 @@ class ModelInfo:
     """The detection head's classes, in the order of ``centre_logit``'s channels (() = no head)."""
     detection_stride: int = 0
     """Input pixels per cell of the detection head's outputs."""
+    camera_spread_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """v2: how much wider the camera heads' errors on cameras they never saw are than the spread
+    they report (pitch, roll, log focal length; ``python -m heightnet.camera_fresh``); 1 where
+    not measured."""
 
     @property
     def contact(self) -> bool:
@@ -165,7 +169,22 @@ def _read_info(path: Path, meta: dict[str, str]) -> ModelInfo:
         raise ModelError(f"{path}: unknown output units {info.output_units!r}")
     if info.contact:
         info.detection_classes, info.detection_stride = _read_detection_head(path, meta)
+        info.camera_spread_scale = _read_spread_scale(path, meta)
     return info
+
+
+def _read_spread_scale(path: Path, meta: dict[str, str]) -> tuple[float, float, float]:
+    """``heightpipe.camera_spread_scale``: three positive numbers, (1, 1, 1) when absent."""
+    text = meta.get("heightpipe.camera_spread_scale")
+    if text is None:
+        return (1.0, 1.0, 1.0)
+    try:
+        scale = tuple(float(v) for v in json.loads(text))
+    except (ValueError, TypeError) as exc:
+        raise ModelError(f"{path} has malformed heightpipe.camera_spread_scale metadata: {exc}") from None
+    if len(scale) != 3 or not all(math.isfinite(v) and v > 0 for v in scale):
+        raise ModelError(f"{path}: heightpipe.camera_spread_scale needs three positive numbers, got {text}")
+    return scale
 
 
 def _read_detection_head(path: Path, meta: dict[str, str]) -> tuple[tuple[str, ...], int]:

@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -98,3 +100,22 @@ def test_the_shipped_v2_model_is_named_v2():
 
     model = HeightNetModel("v2", threads=1)
     assert model.info.contact
+
+
+@pytest.mark.parametrize("text, expected", [
+    (None, (1.0, 1.0, 1.0)),                 # older models: not measured
+    ("[2.2, 1.1, 2.3]", (2.2, 1.1, 2.3)),
+    ("[2.2, 1.1]", "three positive"),
+    ("[2.2, -1, 2.3]", "three positive"),
+    ("[2.2, NaN, 2.3]", "three positive"),
+    ("two", "malformed"),
+])
+def test_the_camera_spread_scale_in_the_metadata(text, expected):
+    from stages.heightnet_model import _read_spread_scale
+
+    meta = {} if text is None else {"heightpipe.camera_spread_scale": text}
+    if isinstance(expected, tuple):
+        assert _read_spread_scale(Path("m.onnx"), meta) == expected
+    else:
+        with pytest.raises(ModelError, match=expected):
+            _read_spread_scale(Path("m.onnx"), meta)
