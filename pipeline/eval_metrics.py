@@ -351,7 +351,19 @@ def height_summary(objects: list[ObjectHeight], min_frames: int) -> dict:
                                   if usable else None),
         "single_frame_median_error_m": float(np.median(single)) if single else None,
         "single_frames": len(single),
+        **uncertainty_cover(usable),
     }
+
+
+def uncertainty_cover(objects: list[ObjectHeight]) -> dict:
+    """How honest the tracks' reported height uncertainty is: the share of objects whose true
+    height lies within their track's final ±1 and ±2 standard deviations (68 % and 95 % if the
+    errors are as wide as said; a smaller share means the run claims more than it knows)."""
+    scored = [o for o in objects if o.tracked_std_m is not None and np.isfinite(o.tracked_std_m)]
+    z = [abs(o.tracked_height_m - o.true_height_m) / max(o.tracked_std_m, 1e-9) for o in scored]
+    return {"within_1_std": float(np.mean(np.asarray(z) <= 1.0)) if z else None,
+            "within_2_std": float(np.mean(np.asarray(z) <= 2.0)) if z else None,
+            "uncertainty_objects": len(z)}
 
 
 # --------------------------------------------------------------------------------------------

@@ -75,6 +75,11 @@ def format_report(report: dict) -> str:
         lines.append(row(f"camera at {height} m", summary))
     for weather, summary in report["height_by_weather"].items():
         lines.append(row(f"weather {weather}", summary))
+    cover = report["height_all"]
+    if cover.get("uncertainty_objects"):
+        lines.append(f"  height uncertainty: the truth within the track's ±1 std for "
+                     f"{100 * cover['within_1_std']:.0f} % of objects, ±2 std {100 * cover['within_2_std']:.0f} % "
+                     f"(68 / 95 % if honest; {cover['uncertainty_objects']} objects)")
     events = report["occlusions"]
     if events:
         kept = sum(e["kept_id"] for e in events)

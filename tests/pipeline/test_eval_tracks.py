@@ -175,3 +175,18 @@ def test_the_report_says_what_the_runs_were_told_of_the_camera(heights, geometry
     report = evaluate([_run([FrameRecord([_truth(1, 10)], [_out(7, 10)], [])])], use_trackeval=False)
     report.update(heights=heights, geometry=geometry, camera=camera)
     assert header in format_report(report).splitlines()[0]
+
+
+def test_the_report_says_how_often_the_truth_lies_within_the_reported_uncertainty():
+    """Four objects tracked 10, 30, 50 and 100 cm off, each reported at ±20 cm (std): one within
+    1 std, three within 2."""
+    frames = []
+    for i in range(12):
+        truth = [_truth(k, 10 + 60 * k, height=1.70) for k in range(4)]
+        outs = [OutputBox(10 + k, (10 + 60 * k, 50.0, 20.0, 60.0), 1.70 + off, 0.20, "person", "network", True)
+                for k, off in enumerate((0.1, -0.3, 0.35, 1.0))]
+        frames.append(FrameRecord(truth, outs, []))
+    report = evaluate([_run(frames)], use_trackeval=False)
+    cover = report["height_all"]
+    assert (cover["within_1_std"], cover["within_2_std"], cover["uncertainty_objects"]) == (0.25, 0.75, 4)
+    assert "±1 std for 25 % of objects, ±2 std 75 %" in format_report(report)
