@@ -70,6 +70,8 @@ class CameraExamples:
 
 @dataclass
 class RefitSettings:
+    """How the heads are refitted (the training run's learning rate and weight decay)."""
+
     epochs: int = 60
     lr: float = 1e-3
     weight_decay: float = 1e-4
