@@ -15,6 +15,12 @@ HEIGHT_ONLY_HINT = ("with only the camera height, HeightNet v2 (the default for 
                     "empty, or --set height.model=v2 --set objects.source=network")
 """Said when a v1 model was named for a run told only the camera height: the case v2's camera
 heads were built for (docs/results.md, 2026-12-04 eighth session)."""
+HEADS_HINT = ("the camera's pitch and focal length above are the network's guess from the pictures; with people "
+              "walking in view, `heightpipe calibrate SOURCE` fits the camera to them (Oxford: people 8.7 cm off "
+              "against 11.6 with the guess; README, 'Your own camera'), or give --calibration FILE")
+"""Said when a v2 run decoded with its camera heads: their pitch is good to about 3-4 degrees on
+cameras they never saw (docs/results.md, 2026-12-04 ninth session), and the user may have a
+better way to the camera."""
 
 
 def _size(path) -> str:
@@ -56,6 +62,8 @@ def format_summary(summary: RunSummary) -> str:
     lines.append(f"  camera: {camera_state_text(summary.camera_source, summary.height_camera)}")
     if summary.camera_source == "camera-height" and summary.height_camera is None:
         lines.append(f"  hint: {HEIGHT_ONLY_HINT}")
+    elif summary.height_camera is not None and summary.height_camera.source == "heads":
+        lines.append(f"  hint: {HEADS_HINT}")
     lines.append(f"  tracks: {tracks_line(summary.objects.sorted_rows())}")
     if summary.events or summary.webhook:
         lines.append(f"  events: {summary.events} height-rule firings"
