@@ -124,3 +124,28 @@ def test_a_missing_state_or_dataset_is_one_line_and_exit_2(tmp_path, capsys):
     (tmp_path / "state.pt").write_bytes(b"")
     assert main(["--data", str(tmp_path), "--state", str(tmp_path / "state.pt")]) == 2
     assert "not a generator dataset" in capsys.readouterr().err
+
+
+def test_the_command_measures_fresh_cameras_and_writes_the_scale_into_the_state(tmp_path, capsys):
+    from core.config import TrainV2Config
+    from heightnet.contact_train import save_state
+    from pipeline.cli import main as cli_main
+
+    assert cli_main(["synth", "--out", str(tmp_path / "fresh"), "--sequences", "3", "--frames", "1",
+                     "--size", "96x72", "--seed", "5", "--split", "train", "--workers", "1", "--no-shadows",
+                     "--no-post", "--no-progress"]) == 0
+    torch.manual_seed(0)
+    net = ContactNet(ARCH)
+    state = tmp_path / "checkpoint.pt"
+    save_state(state, net, torch.optim.Adam(net.parameters()), step=1, images=2,
+               config=TrainV2Config(out=str(tmp_path), input_width=64, input_height=48))
+    capsys.readouterr()
+    assert main(["--data", str(tmp_path / "fresh"), "--state", str(state), "--write", "--epochs", "2",
+                 "--threads", "1", "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "refit on 2 fresh cameras, 1 held back" in printed and "| fresh, all 3 (the scale) |" in printed
+    written = torch.load(state, weights_only=False)
+    assert len(written["camera_spread_scale"]) == 3 and all(v > 0 for v in written["camera_spread_scale"])
+    assert written["camera_spread"]["cameras"] == 3 and written["camera_spread"]["datasets"][0]["seed"] == 5
+    for name, value in net.state_dict().items():   # the weights are left as they were
+        assert torch.equal(written["ema"][name], value)
