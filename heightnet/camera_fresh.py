@@ -61,8 +61,9 @@ class CameraExamples:
     targets: np.ndarray
     cameras: np.ndarray
 
-    def __len__(self) -> int:
-        return len(self.targets)
+    @property
+    def camera_count(self) -> int:
+        return len(np.unique(self.cameras))
 
     def subset(self, rows: np.ndarray) -> "CameraExamples":
         return CameraExamples(self.features[rows], self.targets[rows], self.cameras[rows])
@@ -219,7 +220,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(argv: list[str] | None = None) -> int:
     import datetime
 
-    from heightnet.contact_model import ContactArchitecture
+    from heightnet.contact_train import load_network
     from synth.dataset import list_sequences
 
     parser = argparse.ArgumentParser(prog="python -m heightnet.camera_fresh", description=__doc__.split("\n\n")[0])
@@ -235,8 +236,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {folder} is not a generator dataset (no manifest.json)", file=sys.stderr)
             return 2
     state = torch.load(state_path, map_location="cpu", weights_only=False)
-    net = ContactNet(ContactArchitecture.from_dict(state["architecture"]))
-    net.load_state_dict(state["ema"])
+    net = load_network(state_path)
     width, height = state["input_size"]
     settings = RefitSettings(epochs=args.epochs, seed=args.seed)
 
@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     fit, check = fresh.subset(~check_rows), fresh.subset(check_rows)
     head, epoch, history = refit_head(net.camera_head, fit, check, settings)
 
-    print(f"refit on {len(np.unique(fit.cameras))} fresh cameras, {len(np.unique(check.cameras))} held back: "
+    print(f"refit on {fit.camera_count} fresh cameras, {check.camera_count} held back: "
           f"best epoch {epoch} of {settings.epochs} (held-back mean horizon error {history[0]:.2f} -> "
           f"{history[epoch]:.2f} %)")
     print("| cameras | heads | pitch (deg) | roll (deg) | focal (%) | horizon (%) | horizon mean (%) |")
@@ -258,18 +258,18 @@ def main(argv: list[str] | None = None) -> int:
     for name, part in [("fresh, held back", check), *tests.items()]:
         for label, h in (("trained", net.camera_head), ("refitted", head)):
             e = camera_errors(head_outputs(h, part.features), part.targets)
-            print(f"| {name} ({len(np.unique(part.cameras))}) | {label} | {e['pitch_deg']:.2f} | {e['roll_deg']:.2f} | "
+            print(f"| {name} ({part.camera_count}) | {label} | {e['pitch_deg']:.2f} | {e['roll_deg']:.2f} | "
                   f"{e['focal_pct']:.1f} | {e['horizon_pct']:.2f} | {e['horizon_mean_pct']:.2f} |")
     print("\nthe trained heads' error in units of their reported spread (root mean square; 1 = honest):")
     print("| cameras | pitch | roll | log focal |")
     print("|---|---|---|---|")
     scale = spread_scale(head_outputs(net.camera_head, fresh.features), fresh.targets)
-    for name, part in [(f"fresh, all {len(np.unique(fresh.cameras))} (the scale)", fresh), *tests.items()]:
+    for name, part in [(f"fresh, all {fresh.camera_count} (the scale)", fresh), *tests.items()]:
         z = scale if part is fresh else spread_scale(head_outputs(net.camera_head, part.features), part.targets)
         print(f"| {name} | {z[0]:.2f} | {z[1]:.2f} | {z[2]:.2f} |")
     if args.write:
         record = {"datasets": [generator_settings(Path(f)) for f in args.data],
-                  "cameras": int(len(np.unique(fresh.cameras))), "measured": datetime.date.today().isoformat()}
+                  "cameras": fresh.camera_count, "measured": datetime.date.today().isoformat()}
         tmp = state_path.with_suffix(".tmp")
         torch.save(with_spread_scale(state, scale, record), tmp)
         tmp.replace(state_path)
