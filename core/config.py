@@ -74,6 +74,14 @@ class HeightConfig:
     walkers) at about three times the network's cost (72 ms against 23 at 640, two threads): for
     archives and big frames, not for real time. Needs a v2 export with a free input size (the
     shipped one has)."""
+    vertical_edges: bool = False
+    """v2 told only the camera height: let the scene's vertical edges (walls, poles) sharpen the
+    camera heads' pitch, roll and focal length (``stages/vertical_edges.py``). Off by default:
+    the camera it gives is closer to the truth (held-out generator cameras: pitch 2.4 -> 1.8
+    degrees off, focal length 15 -> 9 %; Oxford: pitch 34 -> 18 degrees against 20) but the
+    heights are not better (held out: the same; Oxford: worse), since the heads' camera errs
+    together with the network's offsets (docs/results.md, 2026-12-04 tenth session). For
+    finding out a camera's pose, not for heights."""
 
 
 @dataclass

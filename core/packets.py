@@ -90,6 +90,9 @@ class HeightCamera:
     """Frames the heads' outputs were averaged over (0 for a given camera)."""
     focal_given: bool = False
     """Heads path only: the focal length is a calibration file's, not the heads'."""
+    edges: int = 0
+    """Heads path only: vertical edges of the scene the heads' camera was sharpened with
+    (``stages/vertical_edges.py``; 0 = the heads alone)."""
 
 
 @dataclass

@@ -23,6 +23,9 @@ and focal length. Then:
   square of each quantity's error in units of its reported standard deviation (1 = honest).
   ``--write`` stores it in the state (``camera_spread_scale``); ``heightpipe export`` puts it in
   the model's metadata, and a run multiplies the heads' spread by it (``stages/contact_heights.py``).
+  ``error_correlation``, the correlation of those scaled errors (pitch and focal length errors
+  go together: the horizon is what the heads see best), is stored and exported beside it; the
+  run's fit to the scene's vertical edges needs it (``stages/vertical_edges.py``).
 * a refit of the heads on those features (the same two layers, from the trained weights, the
   training loss ``camera_nll``, the epoch with the lowest mean horizon error on a seeded sixth of
   the cameras held back): does anything in the frozen features say more about the camera than
@@ -186,11 +189,25 @@ def spread_scale(outputs: np.ndarray, targets: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean(((outputs[:, :HEAD_VALUES] - targets) / std) ** 2, axis=0))
 
 
-def with_spread_scale(state: dict, scale: np.ndarray, record: dict) -> dict:
-    """The training state with ``camera_spread_scale`` (what export writes into the model) and a
-    ``camera_spread`` record of how it was measured."""
+def error_correlation(outputs: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """3 x 3 correlation of the heads' errors (pitch, roll, log focal) in units of their reported
+    standard deviation, about zero (the errors are not re-centred: a bias is part of the error)."""
+    from stages.camera_heads import HEAD_VALUES, MAX_ABS_LOG_VAR
+
+    std = np.exp(0.5 * np.clip(outputs[:, HEAD_VALUES:], -MAX_ABS_LOG_VAR, MAX_ABS_LOG_VAR))
+    z = (outputs[:, :HEAD_VALUES] - targets) / std
+    second = z.T @ z / len(z)
+    norm = np.sqrt(np.diag(second))
+    return second / np.outer(norm, norm)
+
+
+def with_spread_scale(state: dict, scale: np.ndarray, record: dict, correlation: np.ndarray | None = None) -> dict:
+    """The training state with ``camera_spread_scale`` and ``camera_error_correlation`` (what
+    export writes into the model) and a ``camera_spread`` record of how they were measured."""
     state = dict(state)
     state["camera_spread_scale"] = [float(v) for v in scale]
+    if correlation is not None:
+        state["camera_error_correlation"] = [[float(v) for v in row] for row in correlation]
     state["camera_spread"] = record
     return state
 
@@ -263,17 +280,21 @@ def main(argv: list[str] | None = None) -> int:
     print("\nthe trained heads' error in units of their reported spread (root mean square; 1 = honest):")
     print("| cameras | pitch | roll | log focal |")
     print("|---|---|---|---|")
-    scale = spread_scale(head_outputs(net.camera_head, fresh.features), fresh.targets)
+    fresh_outputs = head_outputs(net.camera_head, fresh.features)
+    scale = spread_scale(fresh_outputs, fresh.targets)
+    correlation = error_correlation(fresh_outputs, fresh.targets)
     for name, part in [(f"fresh, all {fresh.camera_count} (the scale)", fresh), *tests.items()]:
         z = scale if part is fresh else spread_scale(head_outputs(net.camera_head, part.features), part.targets)
         print(f"| {name} | {z[0]:.2f} | {z[1]:.2f} | {z[2]:.2f} |")
+    print(f"correlation of those errors on the fresh cameras: pitch-roll {correlation[0, 1]:.2f}, "
+          f"pitch-focal {correlation[0, 2]:.2f}, roll-focal {correlation[1, 2]:.2f}")
     if args.write:
         record = {"datasets": [generator_settings(Path(f)) for f in args.data],
                   "cameras": fresh.camera_count, "measured": datetime.date.today().isoformat()}
         tmp = state_path.with_suffix(".tmp")
-        torch.save(with_spread_scale(state, scale, record), tmp)
+        torch.save(with_spread_scale(state, scale, record, correlation), tmp)
         tmp.replace(state_path)
-        print(f"wrote the spread scale into {state_path} (now `heightpipe export` it)")
+        print(f"wrote the spread scale and error correlation into {state_path} (now `heightpipe export` it)")
     return 0
 
 

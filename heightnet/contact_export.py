@@ -33,10 +33,13 @@ def output_names(net: ContactNet) -> list[str]:
 
 
 def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int,
-                     camera_spread_scale: list[float] | None = None) -> dict[str, str]:
+                     camera_spread_scale: list[float] | None = None,
+                     camera_error_correlation: list[list[float]] | None = None) -> dict[str, str]:
     """The model's metadata; ``camera_spread_scale`` (measured by ``python -m heightnet.camera_fresh
     --write``): how much wider the camera heads' errors on unseen cameras are than the spread they
-    report, per pitch, roll and log focal length (absent: not measured, the run takes 1)."""
+    report, per pitch, roll and log focal length (absent: not measured, the run takes 1), and
+    ``camera_error_correlation`` (the same tool): how those errors go together (absent: the run
+    takes them as independent)."""
     outputs = {
         "offsets": "du, dv in input pixels from each pixel to the image of its ground-contact point",
         "ground_logit": "ground-plane logit",
@@ -54,6 +57,9 @@ def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int,
         "heightpipe.created": datetime.date.today().isoformat(),
         **({"heightpipe.camera_spread_scale": json.dumps([round(float(v), 3) for v in camera_spread_scale])}
            if camera_spread_scale is not None else {}),
+        **({"heightpipe.camera_error_correlation": json.dumps([[round(float(v), 3) for v in row]
+                                                                for row in camera_error_correlation])}
+           if camera_error_correlation is not None else {}),
     }
 
 
@@ -82,7 +88,8 @@ def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict
     model = onnx.load(str(tmp))
     del model.metadata_props[:]
     for key, value in contact_metadata(net, width, height, int(state["images"]),
-                                       state.get("camera_spread_scale")).items():
+                                       state.get("camera_spread_scale"),
+                                       state.get("camera_error_correlation")).items():
         entry = model.metadata_props.add()
         entry.key, entry.value = key, value
     onnx.checker.check_model(model)

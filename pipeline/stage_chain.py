@@ -140,7 +140,7 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
 
         model = model or load_height_model(config)
         height_stages = [("ground", GroundSegmenter(config.ground, model)),
-                         ("height", HeightEstimator(model, camera, assumed_camera_ok))]
+                         ("height", HeightEstimator(model, camera, assumed_camera_ok, config.height.vertical_edges))]
     else:
         height_stages = [("heights", heights)]
     if has_distortion(camera):

@@ -8,7 +8,9 @@ measures with), taken in this order:
    ``heightpipe calibrate`` prints them), with the lens of the file or of ``camera.fov_deg``;
 2. only the mounting height (``--camera-height``): pitch, roll and focal length from the
    network's camera heads, averaged over the frames (``stages/camera_heads.py``), with the
-   heads' uncertainty; the focal length of an intrinsic calibration file when there is one.
+   heads' uncertainty (sharpened by the scene's vertical edges when asked:
+   ``stages/vertical_edges.py``); the focal length of an intrinsic calibration file when there
+   is one.
 
 A given camera comes first because it is exact and the heads are an estimate from pictures; the
 heads come last but do not need anything beyond the one number most users know. With none of
@@ -30,6 +32,7 @@ from stages.calibration import angles_from_rotation, camera_centre
 from stages.camera_heads import HeadsAverage, camera_from_heads
 from stages.ground_contact import PinholeCamera, heights_from_offsets
 from stages.heightnet_model import ModelOutput
+from stages.vertical_edges import EdgeFit, FrameSamples, fit_to_edges
 
 MAX_HEIGHT_M = 50.0
 """Decoded heights are clipped to [0, 50] m, as heightnet/contact_eval.py clips them: nothing
@@ -77,21 +80,28 @@ class ContactHeights:
     One instance per camera and run: the average assumes every frame it sees is from one fixed
     camera. ``spread_scale`` (the model's ``camera_spread_scale``) widens the spread the heads
     report to what their errors are on cameras they never saw: learnt on the training cameras,
-    their log-variances said about half of it for pitch and focal length.
+    their log-variances said about half of it for pitch and focal length. ``error_correlation``
+    (the model's ``camera_error_correlation``) is how their errors go together, which the fit to
+    the scene's vertical edges needs (``vertical_edges``: True lets them sharpen the heads).
     """
 
-    def __init__(self, assumed_camera_ok: bool = False, spread_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)):
+    def __init__(self, assumed_camera_ok: bool = False, spread_scale: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                 error_correlation: np.ndarray | None = None, vertical_edges: bool = False):
         self.assumed_camera_ok = assumed_camera_ok
         self.spread_scale = np.asarray(spread_scale, np.float64)
+        self.error_correlation = np.eye(3) if error_correlation is None else np.asarray(error_correlation, np.float64)
         self.heads = HeadsAverage()
+        self.samples = FrameSamples() if vertical_edges else None
+        self.edge_fit: EdgeFit | None = None
 
-    def decode(self, output: ModelOutput, camera: CameraInfo,
-               frame_size: tuple[int, int]) -> tuple[np.ndarray, HeightCamera]:
-        """Metres (float32, frame_size = (width, height)) and the camera they were decoded with."""
+    def decode(self, output: ModelOutput, camera: CameraInfo, frame_size: tuple[int, int],
+               image: np.ndarray | None = None) -> tuple[np.ndarray, HeightCamera]:
+        """Metres (float32, frame_size = (width, height)) and the camera they were decoded with;
+        ``image`` (the BGR frame) feeds the vertical-edge fit when the camera comes from the heads."""
         source = camera_source(camera, self.assumed_camera_ok)
         in_h, in_w = output.offsets.shape[:2]
         if source in ("heads", "assumed"):
-            pinhole, used = self._heads_camera(output.camera, camera, in_w, in_h)
+            pinhole, used = self._heads_camera(output, camera, in_w, in_h, image)
         else:
             pinhole, used = input_camera(camera, in_w, in_h), _given(camera, source)
         metres = np.clip(heights_from_offsets(pinhole, output.offsets), 0.0, MAX_HEIGHT_M)
@@ -100,22 +110,32 @@ class ContactHeights:
             metres = cv2.resize(metres, (width, height), interpolation=cv2.INTER_LINEAR)
         return metres.astype(np.float32), used
 
-    def _heads_camera(self, outputs: np.ndarray, camera: CameraInfo, in_w: int,
-                      in_h: int) -> tuple[PinholeCamera, HeightCamera]:
+    def _heads_camera(self, output: ModelOutput, camera: CameraInfo, in_w: int, in_h: int,
+                      image: np.ndarray | None) -> tuple[PinholeCamera, HeightCamera]:
+        outputs = output.camera
         self.heads.add(outputs)
         mean, std = self.heads.mean, self.heads.std * self.spread_scale
         if self.heads.frames == 0:  # nothing finite from the heads yet: this frame's, whatever it is
             mean, std = np.asarray(outputs[:3], np.float64), np.full(3, np.inf)
         K = input_intrinsics(camera, in_w, in_h) if camera.lens_from_file and camera.K is not None else None
-        pinhole = camera_from_heads(mean, in_w, in_h, (camera.width, camera.height), camera.height_m, K)
         focal_given = K is not None
+        if focal_given:  # the file's focal length, in image heights, known exactly
+            mean, std = mean.copy(), std.copy()
+            mean[2], std[2] = math.log(float(camera.K[1, 1]) / camera.height), 1e-6
+        if self.samples is not None and image is not None and self.samples.add(image, output.ground_logit):
+            segments, (width, height) = self.samples.segments()
+            self.edge_fit = fit_to_edges(mean, std, self.error_correlation, segments, width, height)
+        edges = 0
+        if self.edge_fit is not None:
+            mean, std, edges = self.edge_fit.values, self.edge_fit.std, self.edge_fit.edges
+        pinhole = camera_from_heads(mean, in_w, in_h, (camera.width, camera.height), camera.height_m, K)
         used = HeightCamera(
             source="heads" if camera.source != "none" else "assumed", height_m=float(camera.height_m),
             pitch_deg=math.degrees(mean[0]), roll_deg=math.degrees(mean[1]),
             focal_px=float(camera.K[1, 1]) if focal_given else math.exp(mean[2]) * camera.height,
             pitch_std_deg=math.degrees(std[0]), roll_std_deg=math.degrees(std[1]),
             focal_std_pct=0.0 if focal_given else math.expm1(std[2]) * 100.0,
-            frames=self.heads.frames, focal_given=focal_given)
+            frames=self.heads.frames, focal_given=focal_given, edges=edges)
         return pinhole, used
 
 

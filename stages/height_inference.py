@@ -20,13 +20,15 @@ class HeightEstimator:
     was used (``packet.height_camera``). A network with a detection head also hands on its
     detections (``packet.network_detections``, frame pixels). ``camera`` (the run's) lets a v2
     model without any camera fail when the stage is built, not at the first frame;
-    ``assumed_camera_ok`` lets it decode with an assumed camera height (``heightpipe calibrate``).
+    ``assumed_camera_ok`` lets it decode with an assumed camera height (``heightpipe calibrate``);
+    ``vertical_edges`` lets the scene's vertical edges sharpen the camera heads' estimate.
     """
 
     def __init__(self, model: HeightNetModel, camera: CameraInfo | None = None,
-                 assumed_camera_ok: bool = False):
+                 assumed_camera_ok: bool = False, vertical_edges: bool = False):
         self.model = model
-        self.contact = (ContactHeights(assumed_camera_ok, model.info.camera_spread_scale)
+        self.contact = (ContactHeights(assumed_camera_ok, model.info.camera_spread_scale,
+                                       model.info.camera_error_correlation, vertical_edges)
                         if model.info.contact else None)
         if self.contact is not None and camera is not None:
             camera_source(camera, assumed_camera_ok)
@@ -35,7 +37,7 @@ class HeightEstimator:
         output = self.model.infer(packet.frame)
         if self.contact is not None:
             h, w = packet.frame.image.shape[:2]
-            height, packet.height_camera = self.contact.decode(output, packet.camera, (w, h))
+            height, packet.height_camera = self.contact.decode(output, packet.camera, (w, h), packet.frame.image)
         else:
             height = self.model.to_metres(output.height, packet.camera)
         if packet.ground_mask is not None:

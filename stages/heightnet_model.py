@@ -95,6 +95,9 @@ class ModelInfo:
     """v2: how much wider the camera heads' errors on cameras they never saw are than the spread
     they report (pitch, roll, log focal length; ``python -m heightnet.camera_fresh``); 1 where
     not measured."""
+    camera_error_correlation: tuple[tuple[float, ...], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    """v2: the correlation of the camera heads' errors (pitch, roll, log focal length) on cameras
+    they never saw (the same tool); independent where not measured."""
 
     @property
     def contact(self) -> bool:
@@ -170,6 +173,7 @@ def _read_info(path: Path, meta: dict[str, str]) -> ModelInfo:
     if info.contact:
         info.detection_classes, info.detection_stride = _read_detection_head(path, meta)
         info.camera_spread_scale = _read_spread_scale(path, meta)
+        info.camera_error_correlation = _read_error_correlation(path, meta)
     return info
 
 
@@ -185,6 +189,22 @@ def _read_spread_scale(path: Path, meta: dict[str, str]) -> tuple[float, float, 
     if len(scale) != 3 or not all(math.isfinite(v) and v > 0 for v in scale):
         raise ModelError(f"{path}: heightpipe.camera_spread_scale needs three positive numbers, got {text}")
     return scale
+
+
+def _read_error_correlation(path: Path, meta: dict[str, str]) -> tuple[tuple[float, ...], ...]:
+    """``heightpipe.camera_error_correlation``: a 3 x 3 correlation matrix (symmetric, ones on the
+    diagonal, positive definite), the identity when absent."""
+    text = meta.get("heightpipe.camera_error_correlation")
+    if text is None:
+        return ModelInfo.camera_error_correlation
+    try:
+        matrix = np.array(json.loads(text), np.float64)
+    except (ValueError, TypeError) as exc:
+        raise ModelError(f"{path} has malformed heightpipe.camera_error_correlation metadata: {exc}") from None
+    if (matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)) or not np.allclose(matrix, matrix.T)
+            or not np.allclose(np.diag(matrix), 1.0) or np.linalg.eigvalsh(matrix).min() <= 0):
+        raise ModelError(f"{path}: heightpipe.camera_error_correlation needs a 3 x 3 correlation matrix, got {text}")
+    return tuple(tuple(float(v) for v in row) for row in matrix)
 
 
 def _read_detection_head(path: Path, meta: dict[str, str]) -> tuple[tuple[str, ...], int]:

@@ -7,8 +7,8 @@ import torch
 from torch import nn
 
 from fake_synth import fake_sequences
-from heightnet.camera_fresh import (CameraExamples, RefitSettings, camera_errors, camera_examples, held_back_rows,
-                                    horizon, main, refit_head, spread_scale, with_spread_scale)
+from heightnet.camera_fresh import (CameraExamples, RefitSettings, camera_errors, camera_examples, error_correlation,
+                                    held_back_rows, horizon, main, refit_head, spread_scale, with_spread_scale)
 from heightnet.contact_model import ContactArchitecture, ContactNet
 
 ARCH = ContactArchitecture(widths=(8, 8, 16, 16), context=(2,), position=True)
@@ -87,6 +87,20 @@ def test_the_spread_scale_is_the_error_in_units_of_the_reported_spread():
     assert spread_scale(outputs, targets) == pytest.approx([2.0, 1.0, 3.0], rel=0.05)
 
 
+def test_the_error_correlation_is_that_of_the_scaled_errors():
+    rng = np.random.default_rng(0)
+    targets = rng.normal(size=(6000, 3)).astype(np.float32)
+    log_var = np.log(np.array([0.02, 0.01, 0.1]) ** 2)
+    shared = rng.normal(size=6000)
+    errors = np.column_stack([0.04 * (0.9 * shared + 0.436 * rng.normal(size=6000)), 0.01 * rng.normal(size=6000),
+                              -0.3 * shared])                      # pitch and focal: correlation -0.9
+    outputs = np.concatenate([targets + errors, np.tile(log_var, (6000, 1))], 1)
+    correlation = error_correlation(outputs, targets)
+    assert np.diag(correlation) == pytest.approx([1, 1, 1])
+    assert correlation[0, 2] == pytest.approx(-0.9, abs=0.02) and correlation[0, 2] == correlation[2, 0]
+    assert abs(correlation[0, 1]) < 0.05 and abs(correlation[1, 2]) < 0.05
+
+
 def test_an_exported_model_carries_the_spread_scale_to_the_run(tmp_path):
     """state --write--> export metadata --> HeightNetModel --> the heads' spread a run reports."""
     from core.packets import CameraInfo
@@ -103,11 +117,14 @@ def test_an_exported_model_carries_the_spread_scale_to_the_run(tmp_path):
                config=TrainV2Config(out=str(tmp_path), input_width=64, input_height=48))
     export_contact(path, tmp_path / "plain.onnx")
     state = torch.load(path, weights_only=False)
-    torch.save(with_spread_scale(state, np.array([2.5, 1.0, 2.0]), {"cameras": 3}), path)
+    correlation = np.array([[1.0, 0.1, -0.8], [0.1, 1.0, 0.0], [-0.8, 0.0, 1.0]])
+    torch.save(with_spread_scale(state, np.array([2.5, 1.0, 2.0]), {"cameras": 3}, correlation), path)
     export_contact(path, tmp_path / "scaled.onnx")
     plain, scaled = HeightNetModel(tmp_path / "plain.onnx"), HeightNetModel(tmp_path / "scaled.onnx")
     assert plain.info.camera_spread_scale == (1.0, 1.0, 1.0)
     assert scaled.info.camera_spread_scale == (2.5, 1.0, 2.0)
+    assert np.array(plain.info.camera_error_correlation) == pytest.approx(np.eye(3))
+    assert np.array(scaled.info.camera_error_correlation) == pytest.approx(correlation)
     image = np.zeros((48, 64, 3), np.uint8)
     only_height = CameraInfo(64, 48, height_m=5.0, source="camera-height")
     widened = ContactHeights(spread_scale=scaled.info.camera_spread_scale)
@@ -146,6 +163,7 @@ def test_the_command_measures_fresh_cameras_and_writes_the_scale_into_the_state(
     assert "refit on 2 fresh cameras, 1 held back" in printed and "| fresh, all 3 (the scale) |" in printed
     written = torch.load(state, weights_only=False)
     assert len(written["camera_spread_scale"]) == 3 and all(v > 0 for v in written["camera_spread_scale"])
+    assert np.diag(written["camera_error_correlation"]) == pytest.approx([1, 1, 1])
     assert written["camera_spread"]["cameras"] == 3 and written["camera_spread"]["datasets"][0]["seed"] == 5
     for name, value in net.state_dict().items():   # the weights are left as they were
         assert torch.equal(written["ema"][name], value)

@@ -119,3 +119,24 @@ def test_the_camera_spread_scale_in_the_metadata(text, expected):
     else:
         with pytest.raises(ModelError, match=expected):
             _read_spread_scale(Path("m.onnx"), meta)
+
+
+@pytest.mark.parametrize("text, expected", [
+    (None, ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))),      # not measured: independent
+    ("[[1, 0, -0.8], [0, 1, 0], [-0.8, 0, 1]]", ((1.0, 0.0, -0.8), (0.0, 1.0, 0.0), (-0.8, 0.0, 1.0))),
+    ("[[1, 0], [0, 1]]", "3 x 3 correlation"),
+    ("[[1, 0, -0.8], [0, 1, 0], [0.8, 0, 1]]", "3 x 3 correlation"),   # not symmetric
+    ("[[2, 0, 0], [0, 1, 0], [0, 0, 1]]", "3 x 3 correlation"),        # not ones on the diagonal
+    ("[[1, 0, 1.2], [0, 1, 0], [1.2, 0, 1]]", "3 x 3 correlation"),    # not positive definite
+    ("[[1, 0, NaN], [0, 1, 0], [NaN, 0, 1]]", "3 x 3 correlation"),
+    ("one", "malformed"),
+])
+def test_the_camera_error_correlation_in_the_metadata(text, expected):
+    from stages.heightnet_model import _read_error_correlation
+
+    meta = {} if text is None else {"heightpipe.camera_error_correlation": text}
+    if isinstance(expected, tuple):
+        assert _read_error_correlation(Path("m.onnx"), meta) == expected
+    else:
+        with pytest.raises(ModelError, match=expected):
+            _read_error_correlation(Path("m.onnx"), meta)

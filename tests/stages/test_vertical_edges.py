@@ -1,0 +1,171 @@
+"""The scene's vertical edges and the camera heads: the vanishing point, the fit, the sampling."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from core.packets import CameraInfo
+from stages.contact_heights import ContactHeights
+from stages.ground_contact import camera_from_angles
+from stages.heightnet_model import ModelOutput
+from stages.vertical_edges import (FIRST_FIT_SAMPLES, MIN_EDGES, REFIT_MAX_FRAMES, SAMPLE_EVERY, FrameSamples,
+                                   edge_residuals, fit_to_edges, vanishing_point, vertical_segments)
+
+W, H = 320, 240
+TRUE = np.array([math.radians(30.0), math.radians(2.0), math.log(0.9)])   # pitch, roll, log(focal / height)
+HEADS_STD = np.array([math.radians(6.0), math.radians(1.1), 0.3])
+CORRELATION = np.array([[1.0, 0.0, -0.8], [0.0, 1.0, 0.0], [-0.8, 0.0, 1.0]])
+
+
+def project(camera, points):
+    p = (camera.K @ (camera.R @ (np.asarray(points, float) - camera.C).T)).T
+    return p[:, :2] / p[:, 2:]
+
+
+def pole_scene(values=TRUE, poles=8, seed=0):
+    """A grey picture of poles standing on flat ground, 6 m below a camera of ``values``, and the
+    poles' image segments (foot to top)."""
+    camera = camera_from_angles(W, H, 6.0, values[0], values[1], math.exp(values[2]) * H)
+    rng = np.random.default_rng(seed)
+    image = np.full((H, W), 90, np.uint8)
+    segments = []
+    for _ in range(poles):
+        x, y = rng.uniform(-6, 6), rng.uniform(9, 20)
+        foot, top = project(camera, [[x, y, 0.0], [x, y, 4.0]])
+        cv2.line(image, tuple(np.round(foot).astype(int)), tuple(np.round(top).astype(int)), 220, 5)
+        segments.append([*foot, *top])
+    return image, np.array(segments)
+
+
+@pytest.mark.parametrize("pitch_deg, focal", [(30.0, 200.0), (45.0, 300.0), (15.0, 150.0)])
+def test_a_level_cameras_verticals_meet_below_the_centre_at_f_cot_pitch(pitch_deg, focal):
+    point = vanishing_point(np.array([math.radians(pitch_deg), 0.0, math.log(focal / H)]), W, H)
+    u, v = point[:2] / point[2]
+    assert u == pytest.approx((W - 1) / 2)
+    assert v - (H - 1) / 2 == pytest.approx(focal / math.tan(math.radians(pitch_deg)))
+
+
+def test_a_level_camera_has_its_vanishing_point_at_infinity_straight_down():
+    point = vanishing_point(np.array([0.0, 0.0, 0.0]), W, H)
+    assert point[2] == pytest.approx(0.0, abs=1e-12) and abs(point[0]) < 1e-9 * abs(point[1])
+    segments = np.array([[10.0, 10.0, 10.0, 60.0], [10.0, 10.0, 30.0, 60.0]])
+    slanted = math.hypot(20, 50) / 2 * math.sin(math.atan2(20, 50))     # half its length x sin(its angle)
+    assert np.abs(edge_residuals(point, segments)) == pytest.approx([0.0, slanted])
+
+
+def test_an_edge_misses_by_half_its_length_times_the_sine_of_its_angle():
+    point = np.array([100.0, 1000.0, 1.0])
+    along = np.array([[100.0, 0.0, 100.0, 50.0]])           # points straight at it
+    turned = np.array([[100.0 - 25 * math.sin(0.1), 25.0 - 25 * math.cos(0.1),
+                        100.0 + 25 * math.sin(0.1), 25.0 + 25 * math.cos(0.1)]])
+    assert abs(edge_residuals(point, along)[0]) < 1e-9
+    assert abs(edge_residuals(point, turned)[0]) == pytest.approx(25 * math.sin(0.1), rel=0.02)
+
+
+def f_cot_pitch(values):
+    """Where the verticals meet, below the centre, in image heights: what the edges measure."""
+    return math.exp(values[2]) / math.tan(values[0])
+
+
+def test_the_edges_pull_a_wrong_heads_estimate_to_the_true_camera():
+    """The heads' errors go along their horizon (pitch up, focal length down); the edges fix where
+    the verticals meet, which is across it, so together they pin all three."""
+    image, _ = pole_scene()
+    segments = vertical_segments(image)
+    assert len(segments) >= 8
+    heads = TRUE + np.array([math.radians(4.0), math.radians(-1.5), -0.12])
+    fit = fit_to_edges(heads, HEADS_STD, CORRELATION, segments, W, H)
+    assert fit is not None and fit.edges >= 8
+    assert f_cot_pitch(fit.values) == pytest.approx(f_cot_pitch(TRUE), rel=0.02)
+    assert abs(math.degrees(fit.values[0] - TRUE[0])) < 1.0 < math.degrees(abs(heads[0] - TRUE[0]))
+    assert abs(math.degrees(fit.values[1] - TRUE[1])) < 0.5
+    assert abs(fit.values[2] - TRUE[2]) < 0.05
+    assert np.all(fit.std < HEADS_STD)          # the edges add knowledge: the spread narrows
+
+
+def test_lines_that_are_not_vertical_are_gated_out():
+    _, poles = pole_scene()
+    rng = np.random.default_rng(1)
+    clutter = np.column_stack([rng.uniform(0, W, 40), rng.uniform(0, H, 40)])
+    clutter = np.column_stack([clutter, clutter + rng.uniform(10, 40, (40, 1)) * np.array([1.0, 0.1])])  # flat
+    heads = TRUE + np.array([math.radians(3.0), 0.0, -0.08])
+    fit = fit_to_edges(heads, HEADS_STD, CORRELATION, np.vstack([poles, clutter]), W, H)
+    assert fit is not None and fit.edges == len(poles)
+    assert f_cot_pitch(fit.values) == pytest.approx(f_cot_pitch(TRUE), rel=0.01)
+    assert abs(math.degrees(fit.values[0] - TRUE[0])) < 1.0
+
+
+def test_too_few_edges_leave_the_heads_alone():
+    _, poles = pole_scene(poles=MIN_EDGES - 1)
+    assert fit_to_edges(TRUE, HEADS_STD, CORRELATION, poles, W, H) is None
+    assert fit_to_edges(TRUE, HEADS_STD, CORRELATION, np.zeros((0, 4)), W, H) is None
+
+
+def test_a_known_focal_length_stays_put():
+    _, poles = pole_scene()
+    heads = TRUE + np.array([math.radians(4.0), 0.0, 0.0])
+    fit = fit_to_edges(heads, np.array([HEADS_STD[0], HEADS_STD[1], 1e-6]), CORRELATION * 0 + np.eye(3), poles, W, H)
+    assert fit.values[2] == pytest.approx(TRUE[2], abs=1e-5)
+    assert abs(math.degrees(fit.values[0] - TRUE[0])) < 0.5
+
+
+def test_segments_on_the_ground_are_dropped():
+    image, _ = pole_scene()
+    ground = np.zeros((H, W), bool)
+    assert len(vertical_segments(image, ground)) >= 8
+    assert len(vertical_segments(image, ~ground)) == 0
+
+
+def test_samples_are_taken_every_few_frames_and_fits_come_at_doubling_counts():
+    samples = FrameSamples()
+    image = np.zeros((H, W, 3), np.uint8)
+    due = [frame for frame in range(1, 1000) if samples.add(image, None)]
+    sampled = range(1, 1000, SAMPLE_EVERY)
+    assert due[0] == sampled[FIRST_FIT_SAMPLES - 1]
+    for before, after in zip(due, due[1:]):   # the first sampled frame at double the count, or 300 on
+        assert after == min(f for f in sampled if f >= before + min(before, REFIT_MAX_FRAMES))
+
+
+def test_a_run_told_only_the_height_sharpens_its_heads_with_the_edges():
+    """ContactHeights end to end: frames of poles, heads off by 4 degrees of pitch."""
+    image, _ = pole_scene()
+    bgr = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    heads = np.concatenate([TRUE + np.array([math.radians(4.0), 0.0, -0.1]), 2 * np.log(HEADS_STD / 2.0)])
+    output = ModelOutput(None, np.full((H, W), -5.0, np.float32), offsets=np.zeros((48, 64, 2), np.float32),
+                         camera=heads.astype(np.float32))
+    told_height = CameraInfo(W, H, height_m=6.0, source="camera-height")
+    sharpened = ContactHeights(spread_scale=(2.0, 2.0, 2.0), error_correlation=CORRELATION, vertical_edges=True)
+    alone = ContactHeights(spread_scale=(2.0, 2.0, 2.0), error_correlation=CORRELATION)
+    for _ in range(SAMPLE_EVERY * FIRST_FIT_SAMPLES):
+        _, used = sharpened.decode(output, told_height, (W, H), bgr)
+        _, heads_only = alone.decode(output, told_height, (W, H), bgr)
+    assert heads_only.edges == 0 and heads_only.pitch_deg == pytest.approx(34.0, abs=0.01)
+    assert used.edges >= 8 and abs(used.pitch_deg - 30.0) < 1.5
+    assert used.pitch_std_deg < heads_only.pitch_std_deg
+
+
+def test_the_camera_line_says_how_many_edges_agreed():
+    from core.packets import HeightCamera
+    from stages.sink_common import height_camera_text
+
+    camera = HeightCamera(source="heads", height_m=6.0, pitch_deg=30.2, roll_deg=1.9, focal_px=216.0,
+                          pitch_std_deg=1.1, roll_std_deg=0.4, focal_std_pct=6.0, frames=60)
+    assert "from the network's camera heads: pitch" in height_camera_text(camera)
+    sharpened = height_camera_text(HeightCamera(**{**camera.__dict__, "edges": 16}))
+    assert "camera heads and 16 vertical edges of the scene: pitch 30.2° ±1.1°" in sharpened
+
+
+def test_the_config_key_reaches_the_height_stage(tmp_path):
+    from core.config import Config, HeightConfig
+    from media import make_tiny_contact_model
+    from pipeline.stage_chain import build_stage_chain
+
+    model = make_tiny_contact_model(tmp_path / "v2.onnx", np.zeros((48, 64, 2), np.float32), [0.4, 0.0, 0.2, -4, -4, -4])
+    camera = CameraInfo(64, 48, height_m=5.0, source="camera-height")
+    for on in (False, True):
+        config = Config(height=HeightConfig(model=str(model), vertical_edges=on))
+        chain = build_stage_chain(config, camera)
+        height = dict(chain.stages)["height"]
+        assert (height.contact.samples is not None) == on
