@@ -9,7 +9,9 @@ in this clip):
 * ``camera-height``: ``--camera-height 7.84`` only (HeightNet v2 by default, its camera heads giving
   pitch and focal length; v1 with ``--set height.model=v1``: network height x camera height);
 * ``self``: ``heightpipe calibrate`` on the clip first (with the file's intrinsics only), then
-  a run with the snippet it prints; a refusal is reported as such.
+  a run with the snippet it prints; a refusal is reported as such;
+* ``scene``: ``heightpipe calibrate --camera-height 7.84`` (nothing else known: pitch, roll and
+  focal length from HeightNet v2's heads and the scene's lines), then a run with its snippet.
 
 Per mode: confirmed person tracks, their mean / min / max final height, how many lie outside
 1.5-2.1 m, the median error of tracks matched to a labelled person, and the median pixel error
@@ -22,7 +24,7 @@ IDR (the share covered by the one track id assigned to each person, as IDF1 assi
 switches, and the people covered in at least 80 % of their frames. Recall only: some people at
 the frame's edges are not labelled, so a track without a label is not a false positive.
 
-    python -m bench.real_heights [--modes calibration,camera-height,self] [--out runs/real_heights]
+    python -m bench.real_heights [--modes calibration,camera-height,self,scene] [--out runs/real_heights]
                                  [--picture docs/oxford_heights.jpg [--picture-frame 60]]
 """
 
@@ -45,7 +47,7 @@ CAMERA_HEIGHT_M = 7.84
 PERSON_RANGE_M = (1.5, 2.1)
 MATCH_IOU = 0.3
 MOSTLY_TRACKED = 0.8
-MODES = ("calibration", "camera-height", "self")
+MODES = ("calibration", "camera-height", "self", "scene")
 
 
 @dataclass
@@ -219,10 +221,12 @@ def run_mode(mode: str, out: Path, overrides: list[str]) -> ModeResult:
         args += ["--calibration", str(CALIBRATION)]
     elif mode == "camera-height":
         args += ["--camera-height", str(CAMERA_HEIGHT_M)]
-    elif mode == "self":
-        snippet = out / "self_calibration.toml"
-        done = subprocess.run(base + ["calibrate", str(VIDEO), "--calibration", str(CALIBRATION),
-                                      "--no-progress", *args[2:]], capture_output=True, text=True)
+    elif mode in ("self", "scene"):
+        snippet = out / f"{mode}_calibration.toml"
+        known = (["--calibration", str(CALIBRATION)] if mode == "self"
+                 else ["--camera-height", str(CAMERA_HEIGHT_M)])
+        done = subprocess.run(base + ["calibrate", str(VIDEO), *known, "--no-progress", *args[2:]],
+                              capture_output=True, text=True)
         if done.returncode != 0:
             return ModeResult(mode, note=(done.stderr.strip().splitlines() or ["failed"])[-1])
         snippet.write_text(done.stdout)
@@ -231,7 +235,7 @@ def run_mode(mode: str, out: Path, overrides: list[str]) -> ModeResult:
                           capture_output=True, text=True)
     if done.returncode != 0:
         return ModeResult(mode, note=(done.stderr.strip().splitlines() or ["failed"])[-1])
-    result = score(mode, prefix.with_name(mode + ".tracks.csv"), undistorted=mode != "camera-height")
+    result = score(mode, prefix.with_name(mode + ".tracks.csv"), undistorted=mode not in ("camera-height", "scene"))
     result.note = next((line.strip() for line in done.stdout.splitlines() if "camera:" in line), "")
     return result
 

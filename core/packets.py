@@ -91,8 +91,8 @@ class HeightCamera:
     focal_given: bool = False
     """Heads path only: the focal length is a calibration file's, not the heads'."""
     edges: int = 0
-    """Heads path only: vertical edges of the scene the heads' camera was sharpened with
-    (``stages/vertical_edges.py``; 0 = the heads alone)."""
+    """Heads path only: straight lines of the scene (vertical edges, parallel ground lines) the
+    heads' camera was sharpened with (``stages/vertical_edges.py``; 0 = the heads alone)."""
 
 
 @dataclass

@@ -1,11 +1,21 @@
-"""`heightpipe calibrate SOURCE`: self-calibrate a camera from the people walking in its video.
+"""`heightpipe calibrate SOURCE`: self-calibrate a camera from the people walking in its video,
+or, told its mounting height, from the scene's straight lines.
 
-Runs the stages of ``heightpipe run`` for an uncalibrated camera (the same tracks; the network's
-metres are not used, they need the camera height this command is looking for), collects the head
-and foot points of upright tracked people and fits horizon and camera height with a population
+Without ``--camera-height``: runs the stages of ``heightpipe run`` for an uncalibrated camera
+(the same tracks; the network's metres are not used, they need the camera height this command
+is looking for), collects the head and foot points of upright tracked people and fits horizon
+and camera height with a population
 height prior (stages/self_calibration.py). Prints a ``[camera]`` snippet for config.toml on
 stdout and the fit's report on stderr; ``--out FILE.json`` also writes a complete calibration
 JSON (intrinsics, distortion, pose) that ``heightpipe run --calibration`` reads.
+
+With ``--camera-height M`` (``scene_camera``): no people needed. HeightNet v2's camera heads
+guess pitch, roll and focal length from each frame, and the scene's straight lines sharpen the
+guess (``stages/vertical_edges.py``: walls and poles meet at the vertical vanishing point,
+parallel kerbs and markings on the horizon). The ``[camera]`` snippet it prints makes the next
+run a posed one (HeightNet v1, moving objects, the geometry channel): on 40 held-out generator
+sequences tracked people 13.8 cm off against 25.0 for a run told only the height, on Oxford Town
+Centre 11.0 against 11.6 (docs/results.md, 2026-12-04 tenth session).
 """
 
 from __future__ import annotations
@@ -23,6 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", metavar="FILE.json",
                         help="also write the result as a complete calibration JSON (intrinsics, "
                              "distortion and pose) for `heightpipe run --calibration`")
+    parser.add_argument("--camera-height", type=float, metavar="M",
+                        help="the camera's mounting height: pitch, roll and focal length then come from the "
+                             "network's camera heads and the scene's straight lines, not from people")
     parser.add_argument("--fov", type=float, metavar="DEG",
                         help="horizontal field of view, when there is no calibration (default: camera.fov_deg)")
     parser.add_argument("--prior-mean", type=float, default=1.70, metavar="M",
@@ -49,6 +62,8 @@ def main(args: argparse.Namespace, config) -> int:
 
     apply_flags(args, config)
     check_capture_limits(config)
+    if args.camera_height is not None:
+        return scene_camera(args, config)
     if not (0.5 < args.prior_mean < 2.5 and 0.0 < args.prior_std < 0.5):
         raise ConfigError("--prior-mean must be in metres (0.5-2.5) and --prior-std in (0, 0.5)")
 
@@ -94,6 +109,72 @@ def main(args: argparse.Namespace, config) -> int:
         write_calibration_json(args.out, result, config.camera.calibration)
         print(f"heightpipe: wrote {args.out} (use it with `heightpipe run --calibration {args.out}`)",
               file=sys.stderr)
+    return 0
+
+
+def scene_camera(args: argparse.Namespace, config) -> int:
+    """``--camera-height``: the camera from v2's heads and the scene's lines, as a snippet."""
+    import math
+
+    from tqdm import tqdm
+
+    from core.errors import ConfigError, HeightpipeError
+    from stages.calibration import camera_for_run
+    from stages.capture import open_source
+    from stages.contact_heights import read_scene_camera
+    from stages.heightnet_model import HeightNetModel
+    from stages.self_calibration import toml_string
+
+    if not args.camera_height > 0:
+        raise ConfigError(f"--camera-height must be the mounting height in metres, got {args.camera_height}")
+    model = HeightNetModel(config.height.model or "v2", config.height.threads)
+    if not model.info.contact:
+        raise ConfigError(f"calibrate --camera-height needs a HeightNet v2 model (camera heads); "
+                          f"{model.path} is a v1 model")
+    source = open_source(args.source, config.capture)
+    width, height = source.size
+    try:
+        lens = camera_for_run(dataclasses.replace(config.camera, pitch_deg=0.0, roll_deg=0.0), width, height)
+    except HeightpipeError:
+        source.close()
+        raise
+    camera = dataclasses.replace(lens, R=None, t=None, height_m=float(args.camera_height), source="camera-height",
+                                 pose_from="")
+    progress = tqdm(total=source.stats.expected, unit="frame", disable=args.no_progress or not config.output.progress,
+                    desc="reading the scene", dynamic_ncols=True, file=sys.stderr)
+
+    def images():
+        for frame in source.frames():
+            yield frame.image
+            progress.update(1)
+
+    used = None
+    try:
+        used = read_scene_camera(model, images(), camera)
+    except KeyboardInterrupt:
+        print("heightpipe: interrupted before the camera was read", file=sys.stderr)
+        return 130
+    finally:
+        progress.close()
+        source.close()
+    if used is None:
+        raise HeightpipeError(f"{args.source}: no frames to read the camera from")
+    fov = math.degrees(2 * math.atan(width / 2 / used.focal_px))
+    lines_note = (f"{used.edges} straight lines of the scene" if used.edges
+                  else "no straight lines agreed: the heads alone, worth checking")
+    print("\n".join([
+        "[camera]",
+        f"height_m = {used.height_m:.2f}            # given",
+        f"pitch_deg = {used.pitch_deg:.2f}           # +- {used.pitch_std_deg:.2f} (network heads, {lines_note})",
+        f"roll_deg = {used.roll_deg:.2f}            # +- {used.roll_std_deg:.2f}",
+        *([f"calibration = {toml_string(config.camera.calibration)}   # intrinsics (its pose is not used)"]
+          if config.camera.calibration else
+          [f"fov_deg = {fov:.1f}             # focal {used.focal_px:.0f} px +- {used.focal_std_pct:.0f} %"]),
+        "self_calibrated = true",
+    ]))
+    print(f"heightpipe: camera from {used.frames} frames: pitch {used.pitch_deg:.1f} +- {used.pitch_std_deg:.1f} deg, "
+          f"roll {used.roll_deg:.1f} +- {used.roll_std_deg:.1f} deg, focal {used.focal_px:.0f} px ({lines_note}); "
+          f"run with it: heightpipe run {args.source} --config THIS_FILE", file=sys.stderr)
     return 0
 
 

@@ -2,13 +2,15 @@
 
 A sequence of a synthetic dataset (``synth.dataset``) goes through the same stage chain as a
 video (``pipeline.stage_chain``), with the dataset's exact camera or, as most users have it, its
-mounting height alone (``known = "height"``); each frame leaves a ``FrameRecord``: the
+mounting height alone (``known = "height"``), or that height and the pose read from the scene
+(``"scene"``); each frame leaves a ``FrameRecord``: the
 ground-truth boxes, the confirmed tracks and the detections.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -108,25 +110,50 @@ def dont_care_region(semantic: np.ndarray) -> np.ndarray | None:
     return np.packbits(parked, axis=1) if parked.any() else None
 
 
-CAMERA_KNOWN = ("true", "height")
-"""What a run is told of a sequence's camera: its exact pose and lens, or its height only."""
+CAMERA_KNOWN = ("true", "height", "scene")
+"""What a run is told of a sequence's camera: its exact pose and lens, its height only, or its
+height and the pose ``heightpipe calibrate --camera-height`` reads from the scene."""
 
 
 def camera_info(sequence, config: Config | None = None, known: str = "true"):
     """The sequence's camera as the run knows it: exact (``"true"``), or, as ``heightpipe run
     --camera-height H`` would have it, the height alone with ``[camera]``'s default lens
-    (``"height"``: no pose, no geometry; v2 learns pitch and focal length with its camera heads)."""
+    (``"height"``: no pose, no geometry; v2 learns pitch and focal length with its camera heads),
+    or that height with the pose ``heightpipe calibrate --camera-height`` prints (``"scene"``)."""
     from core.packets import CameraInfo
     from stages.calibration import camera_for_run
 
     camera = sequence.meta.camera
     if known == "height":
         return camera_for_run(told_height_only(sequence, config), camera.width, camera.height)
+    if known == "scene":
+        return scene_pose(sequence, config)
     if known != "true":
         raise ValueError(f"camera known as {known!r}, not one of {CAMERA_KNOWN}")
     return CameraInfo(width=camera.width, height=camera.height, K=np.asarray(camera.K, float),
                       R=np.asarray(camera.R, float), t=np.asarray(camera.t, float).reshape(3),
                       height_m=float(camera.height_m), source="calibration")
+
+
+def scene_pose(sequence, config: Config | None = None):
+    """The pose ``heightpipe calibrate --camera-height`` prints for the sequence (v2's heads and
+    the scene's lines over all its frames), as a run with that ``[camera]`` snippet has it."""
+    import cv2
+
+    from stages.calibration import camera_for_run
+    from stages.contact_heights import read_scene_camera
+    from stages.heightnet_model import HeightNetModel
+
+    config = config or Config()
+    told = told_height_only(sequence, config)
+    camera = sequence.meta.camera
+    lens_and_height = camera_for_run(told, camera.width, camera.height)
+    model = HeightNetModel("v2", config.height.threads)
+    images = (cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR) for i in range(len(sequence)))
+    used = read_scene_camera(model, images, lens_and_height)
+    fov = math.degrees(2 * math.atan(camera.width / 2 / used.focal_px))
+    return camera_for_run(replace(told, pitch_deg=used.pitch_deg, roll_deg=used.roll_deg, fov_deg=fov,
+                                  self_calibrated=True), camera.width, camera.height)
 
 
 def told_height_only(sequence, config: Config | None = None):

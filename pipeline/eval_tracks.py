@@ -50,8 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--heights", choices=("model", "oracle"), default="model",
                         help="height maps from the network (default) or the ground truth (oracle)")
     parser.add_argument("--camera", choices=CAMERA_KNOWN, default="true",
-                        help="what the run is told of each camera: its exact pose and lens (default), or its "
-                             "height only, as `heightpipe run --camera-height H` (most users' case)")
+                        help="what the run is told of each camera: its exact pose and lens (default), its "
+                             "height only, as `heightpipe run --camera-height H` (most users' case), or its height "
+                             "and the pose `heightpipe calibrate --camera-height H` reads from the scene")
     parser.add_argument("--no-geometry", action="store_true",
                         help="do not fuse the calibrated-camera geometry height")
     parser.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")

@@ -15,12 +15,13 @@ HEIGHT_ONLY_HINT = ("with only the camera height, HeightNet v2 (the default for 
                     "empty, or --set height.model=v2 --set objects.source=network")
 """Said when a v1 model was named for a run told only the camera height: the case v2's camera
 heads were built for (docs/results.md, 2026-12-04 eighth session)."""
-HEADS_HINT = ("the camera's pitch and focal length above are the network's guess from the pictures; with people "
-              "walking in view, `heightpipe calibrate SOURCE` fits the camera to them (Oxford: people 8.7 cm off "
-              "against 11.6 with the guess; README, 'Your own camera'), or give --calibration FILE")
+HEADS_HINT = ("the camera's pitch and focal length above are the network's guess from the pictures; "
+              "`heightpipe calibrate SOURCE --camera-height H > camera.toml` reads them from the scene's straight "
+              "lines, then `heightpipe run SOURCE --config camera.toml` (held-out scenes: people 13.8 cm off against "
+              "25; README, 'Your own camera'), or give --calibration FILE")
 """Said when a v2 run decoded with its camera heads: their pitch is good to about 3-4 degrees on
-cameras they never saw (docs/results.md, 2026-12-04 ninth session), and the user may have a
-better way to the camera."""
+cameras they never saw (docs/results.md, 2026-12-04 ninth session), and the scene's lines read
+it to about one (tenth session)."""
 
 
 def _size(path) -> str:

@@ -123,8 +123,8 @@ class ContactHeights:
             mean, std = mean.copy(), std.copy()
             mean[2], std[2] = math.log(float(camera.K[1, 1]) / camera.height), 1e-6
         if self.samples is not None and image is not None and self.samples.add(image, output.ground_logit):
-            segments, (width, height) = self.samples.segments()
-            self.edge_fit = fit_to_edges(mean, std, self.error_correlation, segments, width, height)
+            upright, ground, (width, height) = self.samples.segments()
+            self.edge_fit = fit_to_edges(mean, std, self.error_correlation, upright, width, height, ground)
         edges = 0
         if self.edge_fit is not None:
             mean, std, edges = self.edge_fit.values, self.edge_fit.std, self.edge_fit.edges
@@ -137,6 +137,18 @@ class ContactHeights:
             focal_std_pct=0.0 if focal_given else math.expm1(std[2]) * 100.0,
             frames=self.heads.frames, focal_given=focal_given, edges=edges)
         return pinhole, used
+
+
+def read_scene_camera(model, images, camera: CameraInfo) -> HeightCamera | None:
+    """The camera a run told only ``camera.height_m`` ends with over ``images`` (BGR frames):
+    ``model``'s (a v2 ``HeightNetModel``) camera heads sharpened by the scene's straight lines.
+    None without images. What ``heightpipe calibrate --camera-height`` prints as a pose."""
+    contact = ContactHeights(spread_scale=model.info.camera_spread_scale,
+                             error_correlation=model.info.camera_error_correlation, vertical_edges=True)
+    used = None
+    for image in images:
+        _, used = contact.decode(model.run(image), camera, (image.shape[1], image.shape[0]), image)
+    return used
 
 
 def _given(camera: CameraInfo, source: str) -> HeightCamera:

@@ -140,7 +140,7 @@ class SelfCalibration:
             f"roll_deg = {self.roll_deg:.2f}            # +- {self.roll_std_deg:.2f}",
         ]
         if calibration:
-            lines.append(f"calibration = {_toml_string(calibration)}   # intrinsics (its pose is not used)")
+            lines.append(f"calibration = {toml_string(calibration)}   # intrinsics (its pose is not used)")
         elif self.focal_source == "estimated":
             fov_std = math.degrees(self.width * self.focal_std_px / (focal ** 2 + (self.width / 2) ** 2))
             lines.append(f"fov_deg = {fov:.1f}             # +- {fov_std:.1f} (focal {focal:.0f} px, estimated)")
@@ -151,7 +151,7 @@ class SelfCalibration:
         return "\n".join(lines)
 
 
-def _toml_string(text: str) -> str:
+def toml_string(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 

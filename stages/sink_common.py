@@ -159,7 +159,7 @@ def height_camera_text(camera: HeightCamera, frames: bool = True) -> str:
     focal = (f"focal {camera.focal_px:.0f} px (calibration file)" if camera.focal_given
              else f"focal {camera.focal_px:.0f} px ±{camera.focal_std_pct:.0f}%")
     estimated = "pitch, roll" if camera.focal_given else "pitch, roll, focal length"
-    heads = "network's camera heads" + (f" and {camera.edges} vertical edges of the scene" if camera.edges else "")
+    heads = "network's camera heads" + (f" and {camera.edges} straight lines of the scene" if camera.edges else "")
     text = (f"HeightNet v2 metres with {where} ({camera.height_m:.2f} m) and {estimated} from the "
             f"{heads}: pitch {pitch} ±{camera.pitch_std_deg:.1f}°, "
             f"roll {roll} ±{camera.roll_std_deg:.1f}°, {focal}")

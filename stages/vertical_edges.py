@@ -1,33 +1,39 @@
-"""The scene's vertical edges sharpen the camera heads' pitch, roll and focal length.
+"""The scene's straight lines sharpen the camera heads' pitch, roll and focal length.
 
 Why: told only the mounting height, a v2 run takes pitch, roll and focal length from the
 network's camera heads, which are off by about 4 degrees of pitch and 16 % of focal length on
 cameras they never saw (docs/results.md, 2026-12-04 ninth session), and they never see a roll.
-A picture holds a cue they do not use precisely: walls, poles, door frames and lamp posts stand
-vertical, and in the image their straight edges all point at one point, the vertical vanishing
-point, ``K R (0, 0, 1)``, which depends on nothing but pitch, roll and focal length. Here:
+A picture holds two cues they read imprecisely. Walls, poles, door frames and lamp posts stand
+vertical, and in the image their edges all point at one point, the vertical vanishing point
+``K R (0, 0, 1)``, below the image at f cot(pitch) and to the side by the roll. Kerbs, lane
+markings and parking bays lie in parallel families on the ground, and each family meets at a
+point of the horizon, f tan(pitch) above the centre: the one quantity the heads see best, and
+the one heights depend on most. Here:
 
 1. ``FrameSamples`` keeps a few grey frames spread over the run; their median is the scene
-   without movers or rain streaks (``background``).
-2. ``vertical_segments``: OpenCV's line segment detector on that background, long segments off
-   the ground (ground markings and kerbs run in every direction; the network's ground mask says
-   where they lie).
-3. ``fit_to_edges``: the heads' estimate is the prior, with their spread and the correlation of
-   their errors (pitch and focal length errors go together: the horizon, f tan(pitch), is what
-   they see best); only segments pointing within ``GATE_DEG`` of the prior's vanishing point take
-   part (roofs, kerbs and parked cars' sides do not), and a robust least-squares fit moves the
-   three numbers as little as the prior allows while making the segments meet. The gate is
-   then drawn again around the fit's vanishing point and the fit repeated (``GATE_ROUNDS``), so
-   heads far off (a real long lens: 14 degrees of pitch) can still reach the edges' camera.
+   without movers or rain streaks.
+2. ``scene_segments``: OpenCV's line segment detector on that median, long segments only, told
+   apart by the network's ground mask: off the ground (candidates for the verticals) and on it.
+3. ``ground_families``: at most two families of parallel ground lines, at least ``MIN_FAMILY``
+   segments each, meeting within the prior's reach of its horizon.
+4. ``fit_to_edges``: the heads' estimate is the prior, with their spread and the correlation of
+   their errors (pitch and focal length errors go together); only off-ground segments pointing
+   within ``GATE_DEG`` of the prior's vanishing point take part (roofs and parked cars' sides do
+   not); a robust least-squares fit moves the three numbers, and each family's point along the
+   horizon, as little as the prior allows while making the verticals meet and each family meet
+   on the horizon. The gate is then drawn again around the fit's vanishing point and the fit
+   repeated (``GATE_ROUNDS``), so heads far off (a real long lens: 14 degrees of pitch) can
+   still reach the scene's camera.
 
-With fewer than ``MIN_EDGES`` segments agreeing (a park, a night scene) the heads stand alone.
-Measured (docs/results.md, 2026-12-04 tenth session; ``python -m bench.camera_edges``): on 40
-held-out generator cameras pitch 2.4 -> 1.8 degrees off (median), roll 1.0 -> 0.5, focal length
-15 -> 9 %, a 1.70 m pole measured with the camera 16.3 -> 10.6 cm off; on Oxford Town Centre
-pitch 34.3 -> 18.0 degrees (true 20.0), roll 0.1 -> 1.3 (1.4). But the run's v2 heights are not
-better for it (held out the same, Oxford worse): the heads' camera errs together with the
-network's offsets, and a truer camera alone undoes that. Hence opt-in (``[height]
-vertical_edges``): a better answer to "how is my camera mounted", not to "how tall is that".
+With fewer than ``MIN_EDGES`` agreeing verticals and no family (a park at night) the heads stand
+alone. Measured (docs/results.md, 2026-12-04 tenth session; ``python -m bench.camera_edges``):
+on 40 held-out generator cameras pitch 2.4 -> 0.9 degrees off (median), roll 1.0 -> 0.5, focal
+length 15 -> 6 %, horizon 4.0 -> 1.5 % of the image height, a 1.70 m pole measured with the
+camera 16.3 -> 6.2 cm off; on Oxford Town Centre pitch 34.3 -> 20.5 degrees (true 20.0), roll
+0.1 -> 1.3 (1.4), focal length 731 -> 1379 px (1348). Opt-in for a run's v2 heights
+(``[height] vertical_edges``: held-out people 25 -> 18 cm, but Oxford 11.6 -> 24), the way to a
+posed run through ``heightpipe calibrate --camera-height`` (``stages.contact_heights.
+read_scene_camera``).
 """
 
 from __future__ import annotations
@@ -38,7 +44,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stages.calibration import vertical_vanishing_point
+from stages.calibration import horizon_line, vertical_vanishing_point
 from stages.ground_contact import camera_from_angles
 
 WORK_WIDTH = 640
@@ -61,6 +67,15 @@ GATE_ROUNDS = 3
 """Gate and fit this many times, each round gating around the last fit's vanishing point."""
 MIN_EDGES = 3
 """Fewer agreeing segments than this: no fit, the heads alone."""
+GROUND_TOLERANCE_DEG = 1.5
+"""A ground segment belongs to a family of parallel ground lines if it points within this angle
+of the family's vanishing point."""
+MIN_FAMILY = 8
+"""A family of parallel ground lines needs this many segments: fewer are chance alignments of
+tiles and markings (on the dev set, three-segment families tilted the horizon by tens of %)."""
+FAMILY_CANDIDATES = 40
+"""Family vanishing points are tried at the crossings of every pair of the longest 40 ground
+segments (780 pairs: deterministic, and enough for a road's edges and markings)."""
 BOUND_SIGMAS = 3.0
 """The fit may move each value at most this many of the prior's standard deviations."""
 EDGE_NOISE = 1.0 / 240.0
@@ -86,6 +101,24 @@ def vanishing_point(values: np.ndarray, width: int, height: int) -> np.ndarray:
     return vertical_vanishing_point(camera_from_angles(width, height, 1.0, pitch, roll, math.exp(log_focal) * height))
 
 
+def horizon(values: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The horizon (a, b, c), a u + b v + c = 0 with a^2 + b^2 = 1, for (pitch, roll, log focal):
+    every family of parallel ground lines meets on it."""
+    pitch, roll, log_focal = (float(v) for v in values)
+    return horizon_line(camera_from_angles(width, height, 1.0, pitch, roll, math.exp(log_focal) * height))
+
+
+def point_on_horizon(line: np.ndarray, angle: float, width: int, height: int) -> np.ndarray:
+    """Homogeneous point of ``line`` at ``angle`` (radians): 0 is the foot of the perpendicular
+    from the image centre, +-pi/2 the line's points at infinity, tan(angle) image heights along
+    it in between (an angle, so a family of lines nearly parallel in the image stays finite)."""
+    a, b, c = line
+    centre = np.array([(width - 1) / 2, (height - 1) / 2])
+    foot = centre - (a * centre[0] + b * centre[1] + c) * np.array([a, b])
+    along = np.array([-b, a])
+    return math.cos(angle) * np.array([*foot, 1.0]) + math.sin(angle) * height * np.array([*along, 0.0])
+
+
 def edge_residuals(point: np.ndarray, segments: np.ndarray) -> np.ndarray:
     """How far (pixels) each segment's first end lies off the line from its middle to ``point``
     (homogeneous, so a vanishing point at infinity works): half its length times the sine of the
@@ -98,81 +131,167 @@ def edge_residuals(point: np.ndarray, segments: np.ndarray) -> np.ndarray:
         return np.einsum("ij,ij->i", ends, lines) / np.hypot(lines[:, 0], lines[:, 1])
 
 
-def vertical_segments(gray: np.ndarray, ground: np.ndarray | None = None) -> np.ndarray:
+def scene_segments(gray: np.ndarray, ground: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """N x 4 (x1, y1, x2, y2) straight segments of a grey image at least ``MIN_LENGTH`` of its
-    height long, those whose middle lies on the ground (``ground``: a boolean mask of the image's
-    size) dropped."""
+    height long: those whose middle lies off the ground (walls, poles: candidates for the
+    verticals) and those on it (kerbs, markings: candidates for the horizon's families), by
+    ``ground``, a boolean mask of the image's size (None: all off the ground)."""
     found = cv2.createLineSegmentDetector().detect(gray)[0]
     if found is None:
-        return np.zeros((0, 4))
+        return np.zeros((0, 4)), np.zeros((0, 4))
     segments = found.reshape(-1, 4).astype(np.float64)
-    length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
-    segments = segments[length >= MIN_LENGTH * gray.shape[0]]
-    if ground is not None and len(segments):
-        h, w = ground.shape
-        middle = ((segments[:, :2] + segments[:, 2:]) / 2).astype(int)
-        on_ground = ground[np.clip(middle[:, 1], 0, h - 1), np.clip(middle[:, 0], 0, w - 1)]
-        segments = segments[~on_ground]
-    return segments
+    segments = segments[_segment_length(segments) >= MIN_LENGTH * gray.shape[0]]
+    if ground is None or not len(segments):
+        return segments, segments[:0]
+    h, w = ground.shape
+    middle = ((segments[:, :2] + segments[:, 2:]) / 2).astype(int)
+    on_ground = ground[np.clip(middle[:, 1], 0, h - 1), np.clip(middle[:, 0], 0, w - 1)]
+    return segments[~on_ground], segments[on_ground]
+
+
+@dataclass(frozen=True)
+class Family:
+    """Parallel ground lines (a kerb, lane markings, parking bays): their segments and where
+    on the horizon they meet (``point_on_horizon``'s angle)."""
+
+    segments: np.ndarray
+    angle: float
+
+
+def _segment_length(segments: np.ndarray) -> np.ndarray:
+    return np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
+
+
+def _misses(point: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Sine of the angle by which each segment misses pointing at ``point``."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.abs(edge_residuals(point, segments)) / (_segment_length(segments) / 2)
+
+
+def _horizon_angle(line: np.ndarray, point: np.ndarray, width: int, height: int) -> float:
+    """``point_on_horizon``'s angle of (the projection onto ``line`` of) a homogeneous point."""
+    foot = point_on_horizon(line, 0.0, width, height)[:2]
+    along = np.array([-line[1], line[0]])
+    return math.atan2(float((point[:2] - point[2] * foot) @ along) / height, float(point[2]))
+
+
+def ground_families(segments: np.ndarray, values: np.ndarray, covariance: np.ndarray, width: int,
+                    height: int) -> list[Family]:
+    """At most two families of parallel ground lines whose meeting point lies within the prior's
+    reach of its horizon (two standard deviations of where the horizon crosses the image's middle
+    column, at least 2 % of the image height), each of at least ``MIN_FAMILY`` segments; the
+    family with the most length first."""
+    if len(segments) < MIN_FAMILY:
+        return []
+    line = horizon(values, width, height)
+    middle = (width - 1) / 2
+
+    def centre_row(theta):
+        a, b, c = horizon(theta, width, height)
+        return -(a * middle + c) / b
+
+    step = 1e-4
+    gradient = np.array([(centre_row(values + step * e) - centre_row(values - step * e)) / (2 * step)
+                         for e in np.eye(3)])
+    band = max(2 * math.sqrt(max(float(gradient @ covariance @ gradient), 0.0)), 0.02 * height)
+    length = _segment_length(segments)
+    candidates = np.argsort(-length)[:FAMILY_CANDIDATES]
+    homogeneous = np.column_stack([segments[:, :2], np.ones(len(segments))])
+    lines = np.cross(homogeneous, np.column_stack([segments[:, 2:], np.ones(len(segments))]))
+    tolerance = math.sin(math.radians(GROUND_TOLERANCE_DEG))
+    free = np.ones(len(segments), bool)
+    families = []
+    for _ in range(2):
+        best, best_length = None, 0.0
+        for i, j in ((i, j) for k, i in enumerate(candidates) for j in candidates[k + 1:]):
+            if not (free[i] and free[j]):
+                continue
+            point = np.cross(lines[i], lines[j])
+            scale = np.hypot(point[0], point[1])
+            if scale == 0 or abs(line @ point) > band * abs(point[2]) + 1e-9 * scale:
+                continue                       # parallel segments, or meeting far off the horizon
+            members = free & (_misses(point, segments) < tolerance)
+            if members.sum() >= MIN_FAMILY and length[members].sum() > best_length:
+                best, best_length = (point, members), float(length[members].sum())
+        if best is None:
+            break
+        point, members = best
+        families.append(Family(segments[members], _horizon_angle(line, point, width, height)))
+        free &= ~members
+    return families
 
 
 def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, segments: np.ndarray,
-                 width: int, height: int) -> EdgeFit | None:
+                 width: int, height: int, ground_segments: np.ndarray | None = None) -> EdgeFit | None:
     """The heads' (pitch, roll, log focal) ``values`` refined by the vertical ``segments`` of a
-    width x height image; None when fewer than ``MIN_EDGES`` agree.
+    width x height image and by families of parallel lines among its ``ground_segments`` (which
+    meet on the horizon); None when fewer than ``MIN_EDGES`` vertical segments agree and no
+    family is found.
 
     ``std`` and ``correlation`` (3 x 3) make the prior's covariance; a quantity known exactly (a
     calibration file's focal length) gets a tiny std and stays put. The fit may move each value
-    at most ``BOUND_SIGMAS`` of its standard deviations. Its spread is the posterior's, with the edges'
-    noise measured from the agreeing segments' own scatter (never below ``EDGE_NOISE``).
+    at most ``BOUND_SIGMAS`` of its standard deviations. Its spread is the posterior's, with the
+    lines' noise measured from the agreeing segments' own scatter (never below ``EDGE_NOISE``).
     """
     values, std = np.asarray(values, np.float64), np.asarray(std, np.float64)
-    if len(segments) < MIN_EDGES or not (np.all(np.isfinite(values)) and np.all(np.isfinite(std))):
+    if not (np.all(np.isfinite(values)) and np.all(np.isfinite(std))):
         return None
     covariance = np.diag(std) @ np.asarray(correlation, np.float64) @ np.diag(std)
     whiten = np.linalg.inv(np.linalg.cholesky(covariance))
-    low, high = values - BOUND_SIGMAS * std, values + BOUND_SIGMAS * std
-    half_length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1]) / 2
-    estimate, solution, used = values, None, segments[:0]
+    families = (ground_families(ground_segments, values, covariance, width, height)
+                if ground_segments is not None else [])
+    low = np.concatenate([values - BOUND_SIGMAS * std, np.full(len(families), -math.pi)])
+    high = np.concatenate([values + BOUND_SIGMAS * std, np.full(len(families), math.pi)])
+    estimate = np.concatenate([values, [f.angle for f in families]])
+    solution, used = None, segments[:0]
     for _ in range(GATE_ROUNDS):
-        with np.errstate(invalid="ignore", divide="ignore"):
-            miss = np.abs(edge_residuals(vanishing_point(estimate, width, height), segments)) / half_length
-        gated = segments[miss < math.sin(math.radians(GATE_DEG))]
+        gated = segments[_misses(vanishing_point(estimate[:3], width, height), segments)
+                         < math.sin(math.radians(GATE_DEG))]
         if len(gated) < MIN_EDGES:
+            gated = segments[:0]
+        if not len(gated) and not families:
             break
         if solution is not None and len(gated) == len(used) and np.array_equal(gated, used):
             break
         used = gated
-        solution = _least_squares(values, whiten, used, width, height, estimate, (low, high))
+        solution = _least_squares(values, whiten, used, families, width, height, estimate, (low, high))
         estimate = solution.x
     if solution is None:
         return None
-    segments = used
-    edge_rows = solution.fun[:len(segments)]
-    inliers = np.abs(edge_rows) < 1.0
-    if inliers.sum() < MIN_EDGES:
+    rows = solution.fun[:-3]
+    inliers = np.abs(rows) < 1.0
+    vertical = int(inliers[:len(used)].sum())
+    if vertical < MIN_EDGES and not families:
         return None
     # Posterior spread: the agreeing segments' Jacobian, their noise scaled to their own scatter.
     count = int(inliers.sum())
-    scatter = max(1.0, float(np.sqrt(np.sum(edge_rows[inliers] ** 2) / max(count - 2, 1))))
-    jacobian = np.vstack([solution.jac[:len(segments)][inliers] / scatter, whiten])
-    posterior = np.linalg.inv(jacobian.T @ jacobian)
-    return EdgeFit(solution.x, np.sqrt(np.diag(posterior)), count)
+    scatter = max(1.0, float(np.sqrt(np.sum(rows[inliers] ** 2) / max(count - 2 - len(families), 1))))
+    jacobian = np.vstack([solution.jac[:-3][inliers] / scatter, solution.jac[-3:]])
+    posterior = np.linalg.pinv(jacobian.T @ jacobian)[:3, :3]
+    return EdgeFit(solution.x[:3], np.sqrt(np.diag(posterior)), count)
 
 
-def _least_squares(prior: np.ndarray, whiten: np.ndarray, segments: np.ndarray, width: int, height: int,
-                   start: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]):
-    """The robust fit: each segment's miss (in ``EDGE_NOISE`` units, longer segments weighing
-    more) and the whitened distance from the prior, under a Cauchy loss."""
+def _least_squares(prior: np.ndarray, whiten: np.ndarray, segments: np.ndarray, families: list[Family], width: int,
+                   height: int, start: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]):
+    """The robust fit of (pitch, roll, log focal, one angle per family): each vertical
+    segment's miss of the vanishing point and each family segment's miss of its point on the
+    horizon (in ``EDGE_NOISE`` units, longer segments weighing more), and the whitened distance
+    from the prior, under a Cauchy loss."""
     from scipy.optimize import least_squares
 
-    length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
-    weights = np.sqrt(length / length.mean()) / (EDGE_NOISE * height)
+    groups = [segments, *(f.segments for f in families)]
+    weights = [np.sqrt(_segment_length(g) / _segment_length(g).mean()) / (EDGE_NOISE * height) if len(g) else g[:, 0]
+               for g in groups]
 
-    def residuals(theta: np.ndarray) -> np.ndarray:
-        # A segment whose middle is the vanishing point has no direction to miss by: 0, not NaN.
-        edges = np.nan_to_num(edge_residuals(vanishing_point(theta, width, height), segments)) * weights
-        return np.concatenate([edges, whiten @ (theta - prior)])
+    def residuals(x: np.ndarray) -> np.ndarray:
+        theta = x[:3]
+        line = horizon(theta, width, height)
+        points = [vanishing_point(theta, width, height),
+                  *(point_on_horizon(line, angle, width, height) for angle in x[3:])]
+        # A segment whose middle is the point has no direction to miss by: 0, not NaN.
+        misses = [np.nan_to_num(edge_residuals(point, group)) * weight
+                  for point, group, weight in zip(points, groups, weights)]
+        return np.concatenate([*misses, whiten @ (theta - prior)])
 
     start = np.clip(start, bounds[0], bounds[1])
     return least_squares(residuals, start, loss="cauchy", f_scale=1.0, bounds=bounds)
@@ -212,11 +331,12 @@ class FrameSamples:
         self._next_fit = self.frames + min(self.frames, REFIT_MAX_FRAMES)
         return True
 
-    def segments(self) -> tuple[np.ndarray, tuple[int, int]]:
-        """Segments of the samples' median (``vertical_segments``) and that image's (width, height)."""
+    def segments(self) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+        """Segments of the samples' median off and on the ground (``scene_segments``) and that
+        image's (width, height)."""
         if any(g.shape != self._grey[-1].shape for g in self._grey):
             self._grey, self._ground = self._grey[-1:], self._ground[-1:]  # the frame size changed
         background = np.median(np.stack(self._grey), axis=0).astype(np.uint8)
         masks = [g for g in self._ground if g is not None and g.shape == background.shape]
         ground = np.mean(masks, axis=0) > 0.5 if masks else None
-        return vertical_segments(background, ground), (background.shape[1], background.shape[0])
+        return (*scene_segments(background, ground), (background.shape[1], background.shape[0]))

@@ -38,3 +38,33 @@ def test_readme_calibration_example_loads():
 
     camera = load_calibration(REPO_ROOT / "docs" / "calibration_example.json")
     assert camera.height_m == pytest.approx(4.5) and camera.dist is not None
+
+
+def test_told_the_height_calibrate_reads_the_camera_from_the_scene(box_video, capsys):
+    """`calibrate --camera-height`: the v2 heads (and any straight lines) give a whole pose as a
+    [camera] snippet a run takes as calibrated, no people needed."""
+    import tomllib
+
+    from core.config import CameraConfig
+    from pipeline.cli import main
+    from stages.calibration import camera_for_run, is_calibrated
+
+    assert main(["calibrate", str(box_video), "--camera-height", "5", "--max-frames", "15", "--no-progress"]) == 0
+    printed = capsys.readouterr()
+    camera = tomllib.loads(printed.out)["camera"]
+    assert camera["height_m"] == 5.0 and camera["self_calibrated"] is True
+    assert 0 < camera["pitch_deg"] < 90 and 1 < camera["fov_deg"] < 179 and abs(camera["roll_deg"]) < 30
+    assert "camera from 15 frames" in printed.err
+    assert is_calibrated(camera_for_run(CameraConfig(**camera), 640, 480))
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--camera-height", "0"], "--camera-height must be the mounting height in metres"),
+    (["--camera-height", "5", "--set", 'height.model="v1"'], "needs a HeightNet v2 model"),
+])
+def test_calibrate_from_the_scene_refuses_in_one_line(box_video, capsys, flags, message):
+    from pipeline.cli import main
+
+    assert main(["calibrate", str(box_video), *flags, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err

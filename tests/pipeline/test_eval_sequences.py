@@ -43,3 +43,19 @@ def test_a_run_told_only_the_camera_height_knows_no_pose_and_fuses_no_geometry()
     assert "geometry" not in [name for name, _ in chain.stages]
     with pytest.raises(ValueError, match="lens"):
         camera_info(_sequence(), Config(), "lens")
+
+
+def test_told_the_height_and_the_scene_the_run_has_a_self_calibrated_pose():
+    """``eval-tracks --camera scene``: the pose ``calibrate --camera-height`` reads from the frames
+    (here plain grey ones: the heads alone), with the true height, taken as self-calibrated."""
+    frames = [SimpleNamespace(rgb=np.full((240, 320, 3), 120, np.uint8))] * 4
+
+    class Sized(SimpleNamespace):
+        def __len__(self):
+            return len(frames)
+
+    sequence = Sized(meta=_sequence().meta, frame=lambda i: frames[i])
+    posed = camera_info(sequence, Config(), "scene")
+    assert posed.source == "self" and posed.R is not None and posed.height_m == pytest.approx(5.0)
+    chain = build_eval_chain(sequence, Config(), "oracle", geometry=True, known="scene", camera=posed)
+    assert "geometry" in [name for name, _ in chain.stages]

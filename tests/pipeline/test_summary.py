@@ -36,7 +36,7 @@ def test_summary_says_which_camera_a_v2_network_decoded_with():
     assert "pitch 18.2° ±1.1°" in camera_line and "focal 512 px ±6%" in camera_line
     assert "mean of 120 frames" in camera_line
     hint = next(line for line in text.splitlines() if line.startswith("  hint:"))
-    assert "network's guess" in hint and "heightpipe calibrate" in hint
+    assert "network's guess" in hint and "heightpipe calibrate SOURCE --camera-height H" in hint
     given = HeightCamera("calibration", 7.84, 23.5, 0.4, 1800.0)
     text = format_summary(RunSummary(source="cam", camera_source="calibration", height_camera=given))
     assert "with the calibration file's camera (height 7.84 m, pitch 23.5°" in text and "±" not in text

@@ -11,7 +11,8 @@ from stages.contact_heights import ContactHeights
 from stages.ground_contact import camera_from_angles
 from stages.heightnet_model import ModelOutput
 from stages.vertical_edges import (FIRST_FIT_SAMPLES, MIN_EDGES, REFIT_MAX_FRAMES, SAMPLE_EVERY, FrameSamples,
-                                   edge_residuals, fit_to_edges, vanishing_point, vertical_segments)
+                                   edge_residuals, fit_to_edges, ground_families, horizon, point_on_horizon,
+                                   scene_segments, vanishing_point)
 
 W, H = 320, 240
 TRUE = np.array([math.radians(30.0), math.radians(2.0), math.log(0.9)])   # pitch, roll, log(focal / height)
@@ -73,7 +74,7 @@ def test_the_edges_pull_a_wrong_heads_estimate_to_the_true_camera():
     """The heads' errors go along their horizon (pitch up, focal length down); the edges fix where
     the verticals meet, which is across it, so together they pin all three."""
     image, _ = pole_scene()
-    segments = vertical_segments(image)
+    segments, _ = scene_segments(image)
     assert len(segments) >= 8
     heads = TRUE + np.array([math.radians(4.0), math.radians(-1.5), -0.12])
     fit = fit_to_edges(heads, HEADS_STD, CORRELATION, segments, W, H)
@@ -111,11 +112,13 @@ def test_a_known_focal_length_stays_put():
     assert abs(math.degrees(fit.values[0] - TRUE[0])) < 0.5
 
 
-def test_segments_on_the_ground_are_dropped():
+def test_segments_on_the_ground_are_told_apart():
     image, _ = pole_scene()
     ground = np.zeros((H, W), bool)
-    assert len(vertical_segments(image, ground)) >= 8
-    assert len(vertical_segments(image, ~ground)) == 0
+    upright, on_ground = scene_segments(image, ground)
+    assert len(upright) >= 8 and len(on_ground) == 0
+    upright, on_ground = scene_segments(image, ~ground)
+    assert len(upright) == 0 and len(on_ground) >= 8
 
 
 def test_samples_are_taken_every_few_frames_and_fits_come_at_doubling_counts():
@@ -154,7 +157,7 @@ def test_the_camera_line_says_how_many_edges_agreed():
                           pitch_std_deg=1.1, roll_std_deg=0.4, focal_std_pct=6.0, frames=60)
     assert "from the network's camera heads: pitch" in height_camera_text(camera)
     sharpened = height_camera_text(HeightCamera(**{**camera.__dict__, "edges": 16}))
-    assert "camera heads and 16 vertical edges of the scene: pitch 30.2° ±1.1°" in sharpened
+    assert "camera heads and 16 straight lines of the scene: pitch 30.2° ±1.1°" in sharpened
 
 
 def test_the_config_key_reaches_the_height_stage(tmp_path):
@@ -162,10 +165,55 @@ def test_the_config_key_reaches_the_height_stage(tmp_path):
     from media import make_tiny_contact_model
     from pipeline.stage_chain import build_stage_chain
 
-    model = make_tiny_contact_model(tmp_path / "v2.onnx", np.zeros((48, 64, 2), np.float32), [0.4, 0.0, 0.2, -4, -4, -4])
+    heads = [0.4, 0.0, 0.2, -4, -4, -4]
+    model = make_tiny_contact_model(tmp_path / "v2.onnx", np.zeros((48, 64, 2), np.float32), heads)
     camera = CameraInfo(64, 48, height_m=5.0, source="camera-height")
     for on in (False, True):
         config = Config(height=HeightConfig(model=str(model), vertical_edges=on))
         chain = build_stage_chain(config, camera)
         height = dict(chain.stages)["height"]
         assert (height.contact.samples is not None) == on
+
+
+def ground_lines(values=TRUE, directions=((1.0, 0.0), (0.3, 1.0)), per_family=10):
+    """Image segments of parallel lines on flat ground 6 m below a camera of ``values``: a
+    family per world direction (kerbs, lane markings), 3 m long, side by side."""
+    camera = camera_from_angles(W, H, 6.0, values[0], values[1], math.exp(values[2]) * H)
+    segments = []
+    for dx, dy in directions:
+        d = np.array([dx, dy, 0.0]) / math.hypot(dx, dy)
+        side = np.array([-d[1], d[0], 0.0])
+        for k in range(per_family):
+            start = np.array([0.0, 12.0, 0.0]) + (k - per_family / 2) * 0.8 * side - 1.5 * d
+            segments.append(project(camera, [start, start + 3.0 * d]).ravel())
+    return np.array(segments)
+
+
+def test_a_point_on_the_horizon_by_its_angle():
+    line = horizon(TRUE, W, H)
+    for angle in (0.0, 0.7, -1.2, math.pi / 2):
+        point = point_on_horizon(line, angle, W, H)
+        assert abs(line @ point) < 1e-9 * np.abs(point).max()
+    assert point_on_horizon(line, math.pi / 2, W, H)[2] == pytest.approx(0.0, abs=1e-12)   # at infinity
+
+
+def test_parallel_ground_lines_are_found_as_families():
+    covariance = np.diag(HEADS_STD) @ CORRELATION @ np.diag(HEADS_STD)
+    families = ground_families(ground_lines(), TRUE + np.array([0.03, 0.0, -0.05]), covariance, W, H)
+    assert sorted(len(f.segments) for f in families) == [10, 10]
+    rng = np.random.default_rng(2)
+    scatter = np.column_stack([rng.uniform(0, W, (30, 2)), rng.uniform(H / 2, H, (30, 2))])[:, [0, 2, 1, 3]]
+    assert ground_families(scatter, TRUE, covariance, W, H) == []       # no chance families
+
+
+def test_ground_lines_fix_the_horizon_the_edges_cannot():
+    """Heads off along the direction the verticals cannot see (their f cot pitch kept): only the
+    ground lines, which meet on the horizon, bring the camera back."""
+    _, poles = pole_scene()
+    pitch = TRUE[0] + math.radians(5.0)
+    along = np.array([pitch, TRUE[1], math.log(math.exp(TRUE[2]) * math.tan(pitch) / math.tan(TRUE[0]))])
+    vertical_only = fit_to_edges(along, HEADS_STD, np.eye(3), poles, W, H)
+    with_ground = fit_to_edges(along, HEADS_STD, np.eye(3), poles, W, H, ground_lines())
+    assert abs(math.degrees(vertical_only.values[0] - TRUE[0])) > 3.0
+    assert abs(math.degrees(with_ground.values[0] - TRUE[0])) < 0.5
+    assert abs(with_ground.values[2] - TRUE[2]) < 0.02 and with_ground.edges == len(poles) + 20
