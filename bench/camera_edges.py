@@ -1,15 +1,16 @@
-"""The camera a run told only its height ends with: the heads alone, and sharpened by vertical edges.
+"""The camera a run told only its height ends with: the heads alone, and sharpened by the scene's lines.
 
     python -m bench.camera_edges DATA [DATA ...] [--model v2] [--frames 0] [--per-sequence]
 
 For each generator sequence (every frame, as ``heightpipe run --camera-height H`` sees it), the
 v2 network's camera heads are averaged as a run averages them (``stages/contact_heights.py``),
-once alone and once with the scene's vertical edges (``stages/vertical_edges.py``), and both
+once alone and once with the scene's straight lines (``stages/vertical_edges.py``: vertical
+edges and parallel ground lines; what ``heightpipe calibrate --camera-height`` reads), and both
 final cameras are compared with the true one: pitch and roll error (degrees), focal length
 error (%), horizon error (% of the image height), and the error of a 1.70 m pole stood on 81
 ground points across the image, foot and top projected with the true camera and measured back
 with the estimated one (cm; what a person standing there would be off by before any error of
-the network's offsets or boxes). Also: the share of sequences the edges were used on, and how
+the network's offsets or boxes). Also: the share of sequences the lines were used on, and how
 often the truth lies within the reported ±1 std (68 % if honest). One table of medians per
 dataset; ``--per-sequence`` prints each sequence too.
 """
@@ -140,19 +141,19 @@ def main(argv: list[str] | None = None) -> int:
     correlation = np.array(model.info.camera_error_correlation)
     rows = []
     for folder in args.data:
-        results = {"heads": [], "heads + edges": []}
+        results = {"heads": [], "heads + lines": []}
         for sequence in list_sequences(folder):
             true_camera = camera_info(sequence)
             heads, edges = sequence_cameras(sequence, model, correlation, model.info.camera_spread_scale, args.frames)
-            for label, used in (("heads", heads), ("heads + edges", edges)):
+            for label, used in (("heads", heads), ("heads + lines", edges)):
                 results[label].append(camera_error(true_camera, used, true_camera.width, true_camera.height))
             if args.per_sequence:
-                a, b = results["heads"][-1], results["heads + edges"][-1]
-                print(f"{sequence.name}: {b.edges} edges; pitch {a.pitch_deg:.2f} -> {b.pitch_deg:.2f} deg, "
+                a, b = results["heads"][-1], results["heads + lines"][-1]
+                print(f"{sequence.name}: {b.edges} lines; pitch {a.pitch_deg:.2f} -> {b.pitch_deg:.2f} deg, "
                       f"roll {a.roll_deg:.2f} -> {b.roll_deg:.2f}, focal {a.focal_pct:.1f} -> {b.focal_pct:.1f} %, "
                       f"pole {a.pole_cm:.1f} -> {b.pole_cm:.1f} cm", flush=True)
         rows += [summary_row(f"{Path(folder).name}, {label}", errors) for label, errors in results.items()]
-    print("| data, camera | sequences | edges used (%) | pitch (deg) | roll (deg) | focal (%) | horizon (%) | "
+    print("| data, camera | sequences | lines used (%) | pitch (deg) | roll (deg) | focal (%) | horizon (%) | "
           "1.70 m pole (cm) | truth within ±1 std: pitch / roll / focal (%) |")
     print("|---|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))

@@ -196,28 +196,33 @@ def ground_families(segments: np.ndarray, values: np.ndarray, covariance: np.nda
     band = max(2 * math.sqrt(max(float(gradient @ covariance @ gradient), 0.0)), 0.02 * height)
     length = _segment_length(segments)
     candidates = np.argsort(-length)[:FAMILY_CANDIDATES]
-    homogeneous = np.column_stack([segments[:, :2], np.ones(len(segments))])
-    lines = np.cross(homogeneous, np.column_stack([segments[:, 2:], np.ones(len(segments))]))
-    tolerance = math.sin(math.radians(GROUND_TOLERANCE_DEG))
+    first, second = np.triu_indices(len(candidates), k=1)
+    first, second = candidates[first], candidates[second]
+    ones = np.ones(len(segments))
+    lines = np.cross(np.column_stack([segments[:, :2], ones]), np.column_stack([segments[:, 2:], ones]))
+    points = np.cross(lines[first], lines[second])              # where each pair of segments meets
+    scale = np.hypot(points[:, 0], points[:, 1])
+    near = (scale > 0) & (np.abs(points @ line) <= band * np.abs(points[:, 2]) + 1e-9 * scale)
+    first, second, points = first[near], second[near], points[near]
+    # Every segment's miss of every candidate point: segments x points, sines of the angle.
+    middle = np.column_stack([(segments[:, :2] + segments[:, 2:]) / 2, ones])
+    through = np.cross(middle[:, None, :], points[None, :, :])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        misses = (np.abs(np.einsum("nk,npk->np", np.column_stack([segments[:, :2], ones]), through))
+                  / np.hypot(through[..., 0], through[..., 1]) / (length[:, None] / 2))
+    agree = misses < math.sin(math.radians(GROUND_TOLERANCE_DEG))   # NaN (a point on a middle) agrees with nothing
     free = np.ones(len(segments), bool)
     families = []
     for _ in range(2):
-        best, best_length = None, 0.0
-        for i, j in ((i, j) for k, i in enumerate(candidates) for j in candidates[k + 1:]):
-            if not (free[i] and free[j]):
-                continue
-            point = np.cross(lines[i], lines[j])
-            scale = np.hypot(point[0], point[1])
-            if scale == 0 or abs(line @ point) > band * abs(point[2]) + 1e-9 * scale:
-                continue                       # parallel segments, or meeting far off the horizon
-            members = free & (_misses(point, segments) < tolerance)
-            if members.sum() >= MIN_FAMILY and length[members].sum() > best_length:
-                best, best_length = (point, members), float(length[members].sum())
-        if best is None:
+        members = agree & free[:, None]
+        usable = members.sum(axis=0) >= MIN_FAMILY
+        usable &= free[first] & free[second]
+        if not usable.any():
             break
-        point, members = best
-        families.append(Family(segments[members], _horizon_angle(line, point, width, height)))
-        free &= ~members
+        support = np.where(usable, length @ members, -1.0)
+        best = int(np.argmax(support))                     # the first of equals: deterministic
+        families.append(Family(segments[members[:, best]], _horizon_angle(line, points[best], width, height)))
+        free &= ~members[:, best]
     return families
 
 

@@ -45,5 +45,5 @@ def test_the_table_on_rendered_sequences(tmp_path, capsys):
     capsys.readouterr()
     assert main([str(tmp_path / "d"), "--per-sequence"]) == 0
     printed = capsys.readouterr().out
-    assert printed.count("| d, heads |") == 1 and printed.count("| d, heads + edges |") == 1
-    assert printed.count(" edges; pitch ") == 2
+    assert printed.count("| d, heads |") == 1 and printed.count("| d, heads + lines |") == 1
+    assert printed.count(" lines; pitch ") == 2
