@@ -4,8 +4,7 @@ or, told its mounting height, from the scene's straight lines.
 Without ``--camera-height``: runs the stages of ``heightpipe run`` for an uncalibrated camera
 (the same tracks; the network's metres are not used, they need the camera height this command
 is looking for), collects the head and foot points of upright tracked people and fits horizon
-and camera height with a population
-height prior (stages/self_calibration.py). Prints a ``[camera]`` snippet for config.toml on
+and camera height with a population height prior (stages/self_calibration.py). Prints a ``[camera]`` snippet for config.toml on
 stdout and the fit's report on stderr; ``--out FILE.json`` also writes a complete calibration
 JSON (intrinsics, distortion, pose) that ``heightpipe run --calibration`` reads.
 
@@ -127,6 +126,9 @@ def scene_camera(args: argparse.Namespace, config) -> int:
 
     if not args.camera_height > 0:
         raise ConfigError(f"--camera-height must be the mounting height in metres, got {args.camera_height}")
+    if args.out:
+        raise ConfigError("--out writes the people fit's calibration JSON; with --camera-height save the "
+                          "[camera] snippet instead: heightpipe calibrate SOURCE --camera-height M > camera.toml")
     model = HeightNetModel(config.height.model or "v2", config.height.threads)
     if not model.info.contact:
         raise ConfigError(f"calibrate --camera-height needs a HeightNet v2 model (camera heads); "

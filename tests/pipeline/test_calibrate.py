@@ -61,6 +61,7 @@ def test_told_the_height_calibrate_reads_the_camera_from_the_scene(box_video, ca
 @pytest.mark.parametrize("flags, message", [
     (["--camera-height", "0"], "--camera-height must be the mounting height in metres"),
     (["--camera-height", "5", "--set", 'height.model="v1"'], "needs a HeightNet v2 model"),
+    (["--camera-height", "5", "--out", "camera.json"], "save the [camera] snippet instead"),
 ])
 def test_calibrate_from_the_scene_refuses_in_one_line(box_video, capsys, flags, message):
     from pipeline.cli import main
