@@ -6,7 +6,8 @@ Without ``--camera-height``: runs the stages of ``heightpipe run`` for an uncali
 is looking for), collects the head and foot points of upright tracked people and fits horizon
 and camera height with a population height prior (stages/self_calibration.py). Prints a
 ``[camera]`` snippet for config.toml on stdout and the fit's report on stderr; ``--out
-FILE.json`` also writes a complete calibration JSON (intrinsics, distortion, pose) that ``heightpipe run --calibration`` reads.
+FILE.json`` also writes a complete calibration JSON (intrinsics, distortion, pose) that
+``heightpipe run --calibration`` reads.
 
 With ``--camera-height M`` (``scene_camera``): no people needed. HeightNet v2's camera heads
 guess pitch, roll and focal length from each frame, and the scene's straight lines sharpen the
