@@ -124,6 +124,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     from stages.contact_heights import read_scene_camera
     from stages.heightnet_model import HeightNetModel
     from stages.self_calibration import toml_string
+    from stages.vertical_edges import FIRST_FIT_SAMPLES, SAMPLE_EVERY
 
     if not args.camera_height > 0:
         raise ConfigError(f"--camera-height must be the mounting height in metres, got {args.camera_height}")
@@ -163,8 +164,10 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     if used is None:
         raise HeightpipeError(f"{args.source}: no frames to read the camera from")
     fov = math.degrees(2 * math.atan(width / 2 / used.focal_px))
-    lines_note = (f"{used.edges} straight lines of the scene" if used.edges
-                  else "no straight lines agreed: the heads alone, worth checking")
+    first_fit = SAMPLE_EVERY * (FIRST_FIT_SAMPLES - 1) + 1
+    lines_note = (f"{used.edges} straight lines of the scene" if used.edges else
+                  f"too few frames for the scene's lines ({first_fit} needed): the heads alone, worth checking"
+                  if used.frames < first_fit else "no straight lines agreed: the heads alone, worth checking")
     print("\n".join([
         "[camera]",
         f"height_m = {used.height_m:.2f}            # given",

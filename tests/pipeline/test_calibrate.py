@@ -56,6 +56,8 @@ def test_told_the_height_calibrate_reads_the_camera_from_the_scene(box_video, ca
     assert 0 < camera["pitch_deg"] < 90 and 1 < camera["fov_deg"] < 179 and abs(camera["roll_deg"]) < 30
     assert "camera from 15 frames" in printed.err
     assert is_calibrated(camera_for_run(CameraConfig(**camera), 640, 480))
+    assert main(["calibrate", str(box_video), "--camera-height", "5", "--max-frames", "4", "--no-progress"]) == 0
+    assert "too few frames for the scene's lines (13 needed)" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flags, message", [
