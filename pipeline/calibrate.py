@@ -114,12 +114,10 @@ def main(args: argparse.Namespace, config) -> int:
 
 def scene_camera(args: argparse.Namespace, config) -> int:
     """``--camera-height``: the camera from v2's heads and the scene's lines, as a snippet."""
-    import math
-
     from tqdm import tqdm
 
     from core.errors import ConfigError, HeightpipeError
-    from stages.calibration import camera_for_run
+    from stages.calibration import camera_for_run, fov_from_focal
     from stages.capture import open_source
     from stages.contact_heights import read_scene_camera
     from stages.heightnet_model import HeightNetModel
@@ -163,7 +161,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
         source.close()
     if used is None:
         raise HeightpipeError(f"{args.source}: no frames to read the camera from")
-    fov = math.degrees(2 * math.atan(width / 2 / used.focal_px))
+    fov = fov_from_focal(width, used.focal_px)
     first_fit = SAMPLE_EVERY * (FIRST_FIT_SAMPLES - 1) + 1
     lines_note = (f"{used.edges} straight lines of the scene" if used.edges else
                   f"too few frames for the scene's lines ({first_fit} needed): the heads alone, worth checking"

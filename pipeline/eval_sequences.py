@@ -10,7 +10,6 @@ ground-truth boxes, the confirmed tracks and the detections.
 from __future__ import annotations
 
 import contextlib
-import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -140,7 +139,7 @@ def scene_pose(sequence, config: Config | None = None):
     the scene's lines over all its frames), as a run with that ``[camera]`` snippet has it."""
     import cv2
 
-    from stages.calibration import camera_for_run
+    from stages.calibration import camera_for_run, fov_from_focal
     from stages.contact_heights import read_scene_camera
     from stages.heightnet_model import HeightNetModel
 
@@ -151,8 +150,8 @@ def scene_pose(sequence, config: Config | None = None):
     model = HeightNetModel("v2", config.height.threads)
     images = (cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR) for i in range(len(sequence)))
     used = read_scene_camera(model, images, lens_and_height)
-    fov = math.degrees(2 * math.atan(camera.width / 2 / used.focal_px))
-    return camera_for_run(replace(told, pitch_deg=used.pitch_deg, roll_deg=used.roll_deg, fov_deg=fov,
+    return camera_for_run(replace(told, pitch_deg=used.pitch_deg, roll_deg=used.roll_deg,
+                                  fov_deg=fov_from_focal(camera.width, used.focal_px),
                                   self_calibrated=True), camera.width, camera.height)
 
 

@@ -80,6 +80,12 @@ def intrinsics_from_fov(width: int, height: int, fov_deg: float) -> np.ndarray:
     return np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
+def fov_from_focal(width: int, focal_px: float) -> float:
+    """Horizontal field of view (degrees) of a focal length in pixels of a ``width``-wide image:
+    what ``[camera] fov_deg`` needs to give ``intrinsics_from_fov`` that focal length back."""
+    return math.degrees(2 * math.atan(width / 2 / focal_px))
+
+
 def rotation_from_angles(pitch_deg: float, roll_deg: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
     """World-to-camera R of a camera pitched down by ``pitch_deg`` and rolled by ``roll_deg``.
 

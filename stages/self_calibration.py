@@ -31,7 +31,7 @@ import numpy as np
 
 from core.errors import HeightpipeError
 from core.packets import CameraInfo, Track
-from stages.calibration import (camera_from_pose, heights_from_foot_top, horizon_line,
+from stages.calibration import (camera_from_pose, fov_from_focal, heights_from_foot_top, horizon_line,
                                 vertical_vanishing_point)
 
 
@@ -130,7 +130,7 @@ class SelfCalibration:
     def config_snippet(self, calibration: str = "") -> str:
         """``[camera]`` lines for config.toml that reproduce this camera."""
         focal = self.K[0, 0]
-        fov = math.degrees(2 * math.atan(self.width / 2 / focal))
+        fov = fov_from_focal(self.width, focal)
         lines = [
             "[camera]",
             f"height_m = {self.height_m:.2f}            # self-calibrated: +- {self.height_std_m:.2f} m "
@@ -227,7 +227,7 @@ def self_calibrate(foot_uv: np.ndarray, top_uv: np.ndarray, track_ids: np.ndarra
     if focal_source == "assumed":
         # Refit with the field of view one assumed std either side: pitch and camera height trade
         # against the focal length, so its ignorance is part of their uncertainty.
-        fov = math.degrees(2 * math.atan(width / 2 / K[0, 0]))
+        fov = fov_from_focal(width, K[0, 0])
         refits = []
         for sign in (-1.0, 1.0):
             other_fov = float(np.clip(fov + sign * settings.assumed_fov_std_deg, 5.0, 150.0))
