@@ -96,9 +96,8 @@ def sequence_cameras(sequence, model, correlation, spread, max_frames: int = 0):
     for index in range(count):
         image = cv2.cvtColor(sequence.frame(index).rgb, cv2.COLOR_RGB2BGR)
         output = model.run(image)
-        size = (image.shape[1], image.shape[0])
-        _, heads = alone.decode(output, told, size, image)
-        _, edges = sharpened.decode(output, told, size, image)
+        heads = alone.heads_camera(output, told, image)
+        edges = sharpened.heads_camera(output, told, image)
     return heads, edges
 
 

@@ -8,7 +8,7 @@ measures with), taken in this order:
    ``heightpipe calibrate`` prints them), with the lens of the file or of ``camera.fov_deg``;
 2. only the mounting height (``--camera-height``): pitch, roll and focal length from the
    network's camera heads, averaged over the frames (``stages/camera_heads.py``), with the
-   heads' uncertainty (sharpened by the scene's vertical edges when asked:
+   heads' uncertainty (sharpened by the scene's straight lines when asked:
    ``stages/vertical_edges.py``); the focal length of an intrinsic calibration file when there
    is one.
 
@@ -82,7 +82,7 @@ class ContactHeights:
     report to what their errors are on cameras they never saw: learnt on the training cameras,
     their log-variances said about half of it for pitch and focal length. ``error_correlation``
     (the model's ``camera_error_correlation``) is how their errors go together, which the fit to
-    the scene's vertical edges needs (``vertical_edges``: True lets them sharpen the heads).
+    the scene's straight lines needs (``vertical_edges``: True lets them sharpen the heads).
     """
 
     def __init__(self, assumed_camera_ok: bool = False, spread_scale: tuple[float, float, float] = (1.0, 1.0, 1.0),
@@ -97,7 +97,7 @@ class ContactHeights:
     def decode(self, output: ModelOutput, camera: CameraInfo, frame_size: tuple[int, int],
                image: np.ndarray | None = None) -> tuple[np.ndarray, HeightCamera]:
         """Metres (float32, frame_size = (width, height)) and the camera they were decoded with;
-        ``image`` (the BGR frame) feeds the vertical-edge fit when the camera comes from the heads."""
+        ``image`` (the BGR frame) feeds the fit to the scene's lines when the camera comes from the heads."""
         source = camera_source(camera, self.assumed_camera_ok)
         in_h, in_w = output.offsets.shape[:2]
         if source in ("heads", "assumed"):
@@ -109,6 +109,12 @@ class ContactHeights:
         if (width, height) != (in_w, in_h):
             metres = cv2.resize(metres, (width, height), interpolation=cv2.INTER_LINEAR)
         return metres.astype(np.float32), used
+
+    def heads_camera(self, output: ModelOutput, camera: CameraInfo, image: np.ndarray | None = None) -> HeightCamera:
+        """The heads' camera (sharpened by the lines when asked) after this frame, as ``decode``
+        would report it, without decoding the frame's heights: for callers after the camera only."""
+        in_h, in_w = output.offsets.shape[:2]
+        return self._heads_camera(output, camera, in_w, in_h, image)[1]
 
     def _heads_camera(self, output: ModelOutput, camera: CameraInfo, in_w: int, in_h: int,
                       image: np.ndarray | None) -> tuple[PinholeCamera, HeightCamera]:
@@ -147,7 +153,7 @@ def read_scene_camera(model, images, camera: CameraInfo) -> HeightCamera | None:
                              error_correlation=model.info.camera_error_correlation, vertical_edges=True)
     used = None
     for image in images:
-        _, used = contact.decode(model.run(image), camera, (image.shape[1], image.shape[0]), image)
+        used = contact.heads_camera(model.run(image), camera, image)
     return used
 
 

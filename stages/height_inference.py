@@ -21,7 +21,7 @@ class HeightEstimator:
     detections (``packet.network_detections``, frame pixels). ``camera`` (the run's) lets a v2
     model without any camera fail when the stage is built, not at the first frame;
     ``assumed_camera_ok`` lets it decode with an assumed camera height (``heightpipe calibrate``);
-    ``vertical_edges`` lets the scene's vertical edges sharpen the camera heads' estimate.
+    ``vertical_edges`` lets the scene's straight lines sharpen the camera heads' estimate.
     """
 
     def __init__(self, model: HeightNetModel, camera: CameraInfo | None = None,

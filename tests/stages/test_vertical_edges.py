@@ -217,3 +217,19 @@ def test_ground_lines_fix_the_horizon_the_edges_cannot():
     assert abs(math.degrees(vertical_only.values[0] - TRUE[0])) > 3.0
     assert abs(math.degrees(with_ground.values[0] - TRUE[0])) < 0.5
     assert abs(with_ground.values[2] - TRUE[2]) < 0.02 and with_ground.edges == len(poles) + 20
+
+
+def test_the_camera_alone_is_the_camera_decode_reports():
+    """``heads_camera`` (calibrate, the bench) skips the heights but not the camera's state."""
+    image, _ = pole_scene()
+    bgr = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    heads = np.concatenate([TRUE + np.array([math.radians(4.0), 0.0, -0.1]), 2 * np.log(HEADS_STD / 2.0)])
+    output = ModelOutput(None, np.full((H, W), -5.0, np.float32), offsets=np.zeros((48, 64, 2), np.float32),
+                         camera=heads.astype(np.float32))
+    told_height = CameraInfo(W, H, height_m=6.0, source="camera-height")
+    decoding = ContactHeights(error_correlation=CORRELATION, vertical_edges=True)
+    reading = ContactHeights(error_correlation=CORRELATION, vertical_edges=True)
+    for _ in range(SAMPLE_EVERY * FIRST_FIT_SAMPLES):
+        _, decoded = decoding.decode(output, told_height, (W, H), bgr)
+        assert reading.heads_camera(output, told_height, bgr) == decoded
+    assert decoded.edges >= 8
