@@ -178,24 +178,25 @@ def _refit_head(head: nn.Module, fit: CameraExamples, check: CameraExamples,
     return head.eval(), best_epoch, history
 
 
-def spread_scale(outputs: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """Per quantity (pitch, roll, log focal), the root mean square of the heads' error in units of
-    the standard deviation they report (``outputs``' last three columns are log-variances,
-    clipped as a run clips them): 1 where the reported spread is honest, 2 where it is half what
-    it should be."""
+def scaled_errors(outputs: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """The heads' errors (pitch, roll, log focal) in units of the standard deviation they report
+    (``outputs``' last three columns are log-variances, clipped as a run clips them)."""
     from stages.camera_heads import HEAD_VALUES, MAX_ABS_LOG_VAR
 
     std = np.exp(0.5 * np.clip(outputs[:, HEAD_VALUES:], -MAX_ABS_LOG_VAR, MAX_ABS_LOG_VAR))
-    return np.sqrt(np.mean(((outputs[:, :HEAD_VALUES] - targets) / std) ** 2, axis=0))
+    return (outputs[:, :HEAD_VALUES] - targets) / std
+
+
+def spread_scale(outputs: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Per quantity, the root mean square of ``scaled_errors``: 1 where the reported spread is
+    honest, 2 where it is half what it should be."""
+    return np.sqrt(np.mean(scaled_errors(outputs, targets) ** 2, axis=0))
 
 
 def error_correlation(outputs: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """3 x 3 correlation of the heads' errors (pitch, roll, log focal) in units of their reported
-    standard deviation, about zero (the errors are not re-centred: a bias is part of the error)."""
-    from stages.camera_heads import HEAD_VALUES, MAX_ABS_LOG_VAR
-
-    std = np.exp(0.5 * np.clip(outputs[:, HEAD_VALUES:], -MAX_ABS_LOG_VAR, MAX_ABS_LOG_VAR))
-    z = (outputs[:, :HEAD_VALUES] - targets) / std
+    """3 x 3 correlation of ``scaled_errors`` about zero (the errors are not re-centred: a bias is
+    part of the error)."""
+    z = scaled_errors(outputs, targets)
     second = z.T @ z / len(z)
     norm = np.sqrt(np.diag(second))
     return second / np.outer(norm, norm)
@@ -272,9 +273,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{history[epoch]:.2f} %)")
     print("| cameras | heads | pitch (deg) | roll (deg) | focal (%) | horizon (%) | horizon mean (%) |")
     print("|---|---|---|---|---|---|---|")
-    for name, part in [("fresh, held back", check), *tests.items()]:
-        for label, h in (("trained", net.camera_head), ("refitted", head)):
-            e = camera_errors(head_outputs(h, part.features), part.targets)
+    parts = [("fresh, held back", check), *tests.items()]
+    trained = {name: head_outputs(net.camera_head, part.features) for name, part in parts}
+    for name, part in parts:
+        for label, outputs in (("trained", trained[name]), ("refitted", head_outputs(head, part.features))):
+            e = camera_errors(outputs, part.targets)
             print(f"| {name} ({part.camera_count}) | {label} | {e['pitch_deg']:.2f} | {e['roll_deg']:.2f} | "
                   f"{e['focal_pct']:.1f} | {e['horizon_pct']:.2f} | {e['horizon_mean_pct']:.2f} |")
     print("\nthe trained heads' error in units of their reported spread (root mean square; 1 = honest):")
@@ -284,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     scale = spread_scale(fresh_outputs, fresh.targets)
     correlation = error_correlation(fresh_outputs, fresh.targets)
     for name, part in [(f"fresh, all {fresh.camera_count} (the scale)", fresh), *tests.items()]:
-        z = scale if part is fresh else spread_scale(head_outputs(net.camera_head, part.features), part.targets)
+        z = scale if part is fresh else spread_scale(trained[name], part.targets)
         print(f"| {name} | {z[0]:.2f} | {z[1]:.2f} | {z[2]:.2f} |")
     print(f"correlation of those errors on the fresh cameras: pitch-roll {correlation[0, 1]:.2f}, "
           f"pitch-focal {correlation[0, 2]:.2f}, roll-focal {correlation[1, 2]:.2f}")
