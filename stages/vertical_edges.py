@@ -122,13 +122,13 @@ def point_on_horizon(line: np.ndarray, angle: float, width: int, height: int) ->
 def edge_residuals(point: np.ndarray, segments: np.ndarray) -> np.ndarray:
     """How far (pixels) each segment's first end lies off the line from its middle to ``point``
     (homogeneous, so a vanishing point at infinity works): half its length times the sine of the
-    angle by which it misses."""
+    angle by which it misses. ``point`` may be a stack (P x 1 x 3): then P x N misses."""
     ones = np.ones(len(segments))
     middle = np.column_stack([(segments[:, :2] + segments[:, 2:]) / 2, ones])
     lines = np.cross(middle, point)
     ends = np.column_stack([segments[:, :2], ones])
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.einsum("ij,ij->i", ends, lines) / np.hypot(lines[:, 0], lines[:, 1])
+        return (ends * lines).sum(axis=-1) / np.hypot(lines[..., 0], lines[..., 1])
 
 
 def scene_segments(gray: np.ndarray, ground: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -163,7 +163,7 @@ def _segment_length(segments: np.ndarray) -> np.ndarray:
 
 
 def _misses(point: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """Sine of the angle by which each segment misses pointing at ``point``."""
+    """Sine of the angle by which each segment misses pointing at ``point`` (or each of a stack)."""
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.abs(edge_residuals(point, segments)) / (_segment_length(segments) / 2)
 
@@ -204,13 +204,9 @@ def ground_families(segments: np.ndarray, values: np.ndarray, covariance: np.nda
     scale = np.hypot(points[:, 0], points[:, 1])
     near = (scale > 0) & (np.abs(points @ line) <= band * np.abs(points[:, 2]) + 1e-9 * scale)
     first, second, points = first[near], second[near], points[near]
-    # Every segment's miss of every candidate point: segments x points, sines of the angle.
-    middle = np.column_stack([(segments[:, :2] + segments[:, 2:]) / 2, ones])
-    through = np.cross(middle[:, None, :], points[None, :, :])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        misses = (np.abs(np.einsum("nk,npk->np", np.column_stack([segments[:, :2], ones]), through))
-                  / np.hypot(through[..., 0], through[..., 1]) / (length[:, None] / 2))
-    agree = misses < math.sin(math.radians(GROUND_TOLERANCE_DEG))   # NaN (a point on a middle) agrees with nothing
+    # Every segment's miss of every candidate point (segments x points), and which agree with it;
+    # NaN (a point on a segment's middle) agrees with nothing.
+    agree = _misses(points[:, None, :], segments).T < math.sin(math.radians(GROUND_TOLERANCE_DEG))
     free = np.ones(len(segments), bool)
     families = []
     for _ in range(2):
