@@ -252,7 +252,7 @@ def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, s
             gated = segments[:0]
         if not len(gated) and not families:
             break
-        if solution is not None and len(gated) == len(used) and np.array_equal(gated, used):
+        if solution is not None and np.array_equal(gated, used):   # the gate settled
             break
         used = gated
         solution = _least_squares(values, whiten, used, families, width, height, estimate, (low, high))
