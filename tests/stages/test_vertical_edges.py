@@ -131,14 +131,19 @@ def test_samples_are_taken_every_few_frames_and_fits_come_at_doubling_counts():
         assert after == min(f for f in sampled if f >= before + min(before, REFIT_MAX_FRAMES))
 
 
-def test_a_run_told_only_the_height_sharpens_its_heads_with_the_edges():
-    """ContactHeights end to end: frames of poles, heads off by 4 degrees of pitch."""
+def poles_told_only_the_height():
+    """A frame of poles, the network's output on it with heads 4 degrees of pitch off (and the
+    focal length along), and a run camera that knows only its 6 m height."""
     image, _ = pole_scene()
-    bgr = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     heads = np.concatenate([TRUE + np.array([math.radians(4.0), 0.0, -0.1]), 2 * np.log(HEADS_STD / 2.0)])
     output = ModelOutput(None, np.full((H, W), -5.0, np.float32), offsets=np.zeros((48, 64, 2), np.float32),
                          camera=heads.astype(np.float32))
-    told_height = CameraInfo(W, H, height_m=6.0, source="camera-height")
+    return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR), output, CameraInfo(W, H, height_m=6.0, source="camera-height")
+
+
+def test_a_run_told_only_the_height_sharpens_its_heads_with_the_edges():
+    """ContactHeights end to end: frames of poles, heads off by 4 degrees of pitch."""
+    bgr, output, told_height = poles_told_only_the_height()
     sharpened = ContactHeights(spread_scale=(2.0, 2.0, 2.0), error_correlation=CORRELATION, vertical_edges=True)
     alone = ContactHeights(spread_scale=(2.0, 2.0, 2.0), error_correlation=CORRELATION)
     for _ in range(SAMPLE_EVERY * FIRST_FIT_SAMPLES):
@@ -221,12 +226,7 @@ def test_ground_lines_fix_the_horizon_the_edges_cannot():
 
 def test_the_camera_alone_is_the_camera_decode_reports():
     """``heads_camera`` (calibrate, the bench) skips the heights but not the camera's state."""
-    image, _ = pole_scene()
-    bgr = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    heads = np.concatenate([TRUE + np.array([math.radians(4.0), 0.0, -0.1]), 2 * np.log(HEADS_STD / 2.0)])
-    output = ModelOutput(None, np.full((H, W), -5.0, np.float32), offsets=np.zeros((48, 64, 2), np.float32),
-                         camera=heads.astype(np.float32))
-    told_height = CameraInfo(W, H, height_m=6.0, source="camera-height")
+    bgr, output, told_height = poles_told_only_the_height()
     decoding = ContactHeights(error_correlation=CORRELATION, vertical_edges=True)
     reading = ContactHeights(error_correlation=CORRELATION, vertical_edges=True)
     for _ in range(SAMPLE_EVERY * FIRST_FIT_SAMPLES):
