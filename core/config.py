@@ -229,6 +229,13 @@ class CameraConfig:
     """Standard deviation of detected foot/top points, for the geometry height's noise."""
     rescale_network: bool = True
     """Calibrated cameras: scale the network's heights by its median ratio to the geometry's on people."""
+    read_scene_frames: int = 30
+    """Told only height_m, a run over a file first reads pitch, roll and focal length from this
+    many frames of its first read_scene_s seconds (v2's camera heads and the scene's straight
+    lines, as ``heightpipe calibrate --camera-height`` does) and then runs posed (0 = off: v2's
+    heads guess the camera in the run). Live streams cannot be read ahead and keep the heads."""
+    read_scene_s: float = 30.0
+    """The span of the video's start those frames are spread over."""
 
 
 @dataclass
@@ -623,6 +630,11 @@ HEIGHT_ONLY_MODEL = "v2"
 """The shipped model a run told only its camera's height uses (``model_for_camera``)."""
 
 
+def told_height_only(camera: CameraConfig) -> bool:
+    """Whether ``[camera]`` gives the camera's height and nothing else of its pose or lens."""
+    return camera.height_m > 0 and camera.pitch_deg == 0.0 and not camera.calibration
+
+
 def model_for_camera(config: Config) -> Config:
     """The config a run uses: with ``height.model = ""`` and only the camera's height given (no
     calibration file, no pitch), HeightNet v2 with its detection head finding the objects
@@ -633,10 +645,10 @@ def model_for_camera(config: Config) -> Config:
     sequences, 11.6 against 37.5 cm on Oxford Town Centre (docs/results.md, 2026-12-04 eighth
     session); with a full pose v1 and its blobs stay (Oxford: 10.5 cm against v2's 27.6). A model
     named in the config (``v1``, ``v2``, a path) is used as named, with ``[objects]`` as given.
+    A file run told only the height is posed first (``pipeline/scene_camera.py``), so this case
+    is left to live streams and ``[camera] read_scene_frames = 0``.
     """
-    camera = config.camera
-    told_height_only = camera.height_m > 0 and camera.pitch_deg == 0.0 and not camera.calibration
-    if config.height.model or not told_height_only:
+    if config.height.model or not told_height_only(config.camera):
         return config
     return dataclasses.replace(config, height=dataclasses.replace(config.height, model=HEIGHT_ONLY_MODEL),
                                objects=dataclasses.replace(config.objects, source="network"))

@@ -110,15 +110,16 @@ def dont_care_region(semantic: np.ndarray) -> np.ndarray | None:
 
 
 CAMERA_KNOWN = ("true", "height", "scene")
-"""What a run is told of a sequence's camera: its exact pose and lens, its height only, or its
-height and the pose ``heightpipe calibrate --camera-height`` reads from the scene."""
+"""What a run is told of a sequence's camera: its exact pose and lens, its height only (the run
+then reads the rest from its first frames, as ``heightpipe run --camera-height H`` does), or its
+height and the pose ``heightpipe calibrate --camera-height`` reads from all of its frames."""
 
 
 def camera_info(sequence, config: Config | None = None, known: str = "true"):
-    """The sequence's camera as the run knows it: exact (``"true"``), or, as ``heightpipe run
-    --camera-height H`` would have it, the height alone with ``[camera]``'s default lens
-    (``"height"``: no pose, no geometry; v2 learns pitch and focal length with its camera heads),
-    or that height with the pose ``heightpipe calibrate --camera-height`` prints (``"scene"``)."""
+    """The sequence's camera as the run is told it: exact (``"true"``), or, as ``heightpipe run
+    --camera-height H`` is told it, the height alone with ``[camera]``'s default lens
+    (``"height"``: no pose), or that height with the pose ``heightpipe calibrate --camera-height``
+    prints (``"scene"``). What the run makes of it: ``run_setup``."""
     from core.packets import CameraInfo
     from stages.calibration import camera_for_run
 
@@ -126,7 +127,7 @@ def camera_info(sequence, config: Config | None = None, known: str = "true"):
     if known == "height":
         return camera_for_run(told_height_only(sequence, config), camera.width, camera.height)
     if known == "scene":
-        return scene_pose(sequence, config)
+        return run_setup(sequence, config or Config(), "scene")[1]
     if known != "true":
         raise ValueError(f"camera known as {known!r}, not one of {CAMERA_KNOWN}")
     return CameraInfo(width=camera.width, height=camera.height, K=np.asarray(camera.K, float),
@@ -134,25 +135,35 @@ def camera_info(sequence, config: Config | None = None, known: str = "true"):
                       height_m=float(camera.height_m), source="calibration")
 
 
-def scene_pose(sequence, config: Config | None = None):
-    """The pose ``heightpipe calibrate --camera-height`` prints for the sequence (v2's heads and
-    the scene's lines over all its frames), as a run with that ``[camera]`` snippet has it."""
+def run_setup(sequence, config: Config, known: str = "true"):
+    """The config and camera ``heightpipe run`` works with, told ``known`` of the sequence's camera.
+
+    Told only the height, the run reads pitch, roll and focal length from frames spread over its
+    start (``pipeline/scene_camera.py``; ``[camera] read_scene_frames``) and runs posed, or keeps
+    v2's camera heads where that is off; ``"scene"`` reads them from every frame. The model is
+    the one such a run picks (``core.config.model_for_camera``).
+    """
     import cv2
 
-    from stages.calibration import camera_for_run, fov_from_focal
-    from stages.contact_heights import read_scene_camera
-    from stages.heightnet_model import HeightNetModel
+    from pipeline.scene_camera import pose_from_scene, reads_scene
+    from stages.calibration import camera_for_run
+    from stages.capture import background_indices
 
-    config = config or Config()
-    told = told_height_only(sequence, config)
+    if known == "true":
+        return config, camera_info(sequence)
+    if known not in CAMERA_KNOWN:
+        raise ValueError(f"camera known as {known!r}, not one of {CAMERA_KNOWN}")
+    told = replace(config, camera=told_height_only(sequence, config))
+    indices: list[int] = []
+    if known == "scene":
+        indices = list(range(len(sequence)))
+    elif reads_scene(told):
+        indices = background_indices(len(sequence), sequence.meta.fps, told.camera.read_scene_frames,
+                                     told.camera.read_scene_s)
+    images = [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR) for i in indices]
+    config = model_for_camera(pose_from_scene(told, images)[0])
     camera = sequence.meta.camera
-    lens_and_height = camera_for_run(told, camera.width, camera.height)
-    model = HeightNetModel("v2", config.height.threads)
-    images = (cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR) for i in range(len(sequence)))
-    used = read_scene_camera(model, images, lens_and_height)
-    return camera_for_run(replace(told, pitch_deg=used.pitch_deg, roll_deg=used.roll_deg,
-                                  fov_deg=fov_from_focal(camera.width, used.focal_px),
-                                  self_calibrated=True), camera.width, camera.height)
+    return config, camera_for_run(config.camera, camera.width, camera.height)
 
 
 def told_height_only(sequence, config: Config | None = None):
@@ -163,25 +174,23 @@ def told_height_only(sequence, config: Config | None = None):
 
 
 def build_eval_chain(sequence, config: Config, heights: str, geometry: bool, known: str = "true", camera=None):
-    """``heightpipe run``'s stages for a generator sequence (``pipeline.stage_chain``), for
-    ``camera``, the run's (``camera_info``; made here when None).
+    """``heightpipe run``'s stages for a generator sequence (``pipeline.stage_chain``): with
+    ``camera`` None, for the config and camera ``run_setup`` gives a run told ``known``; else
+    for ``config`` and ``camera`` as given (``run_setup``'s).
 
     With ``heights="oracle"`` the true height and ground maps stand in for the network, and the
-    stages that correct the network's scale and bias are told there is none to correct. Told only
-    the camera height, the network is the one such a run picks (``core.config.model_for_camera``).
+    stages that correct the network's scale and bias are told there is none to correct.
     """
     from pipeline.stage_chain import build_stage_chain
 
-    if known == "height" and heights == "model":
-        config = model_for_camera(replace(config, camera=told_height_only(sequence, config)))
-
+    if camera is None:
+        config, camera = run_setup(sequence, config, known)
     if heights == "oracle":
         # True heights are metric: there is no network scale to learn (nor to doubt), nor a
         # per-object bias for the height filter to learn.
         config = replace(config, camera=replace(config.camera, rescale_network=False),
                          tracking=replace(config.tracking, network_bias_share=0.0))
-    return build_stage_chain(config, camera_info(sequence, config, known) if camera is None else camera,
-                             heights=OracleHeights(sequence) if heights == "oracle" else None,
+    return build_stage_chain(config, camera, heights=OracleHeights(sequence) if heights == "oracle" else None,
                              geometry=geometry)
 
 
@@ -224,8 +233,8 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
     (``known``: what the run is told of the camera, ``CAMERA_KNOWN``)."""
     meta = sequence.meta
     run = SequenceRun(sequence.name, float(meta.camera.height_m), meta.weather, meta.time_of_day)
-    camera = camera_info(sequence, config, known)
-    chain = build_eval_chain(sequence, config, heights, geometry, known, camera)
+    config, camera = run_setup(sequence, config, known)
+    chain = build_eval_chain(sequence, config, heights, geometry, camera=camera)
     prime_sequence_background(sequence, chain, config)
     sink = _open_recording(record, config, sequence.name) if record else None
     start = time.perf_counter()

@@ -21,6 +21,7 @@ from typing import Callable, Iterator
 from core.config import Config, model_for_camera
 from core.packets import CameraInfo, HeightCamera
 from core.stage import Sink
+from pipeline.scene_camera import pose_from_scene, reads_scene
 from pipeline.stage_chain import build_stage_chain, close_all, import_stages, load_height_model
 from stages.capture import CaptureStats, FrameSource, StreamSource, open_source
 from stages.objects_table import ObjectTable
@@ -58,6 +59,8 @@ class RunSummary:
     camera_source: str = "none"
     height_camera: HeightCamera | None = None
     """The camera a v2 network's heights were decoded with at the last frame (None: a v1 model)."""
+    scene_camera: HeightCamera | None = None
+    """Told only the camera height: the camera read from the first frames that posed the run."""
     outputs: RunOutputs | None = None
 
     @property
@@ -205,6 +208,23 @@ FrameCallback = Callable[[int, "int | None", float], None]
 """on_frame(frames processed, frames expected or None, elapsed seconds)."""
 
 
+def _posed_from_scene(told: Config, config: Config, model, source: FrameSource, background: list):
+    """Told only the camera height (``told``), a file's camera read from its first frames
+    (``pipeline/scene_camera.py``): the posed run's config, its model (the one loaded is kept if
+    the posed config names the same) and the camera read; ``config`` and ``model`` as they were
+    when the source cannot be read ahead or the camera read cannot pose the run."""
+    frames, span = told.camera.read_scene_frames, told.camera.read_scene_s
+    same = (frames, span) == (told.objects.background_prime_frames, told.objects.background_prime_s)
+    images = background if same else source.background_sample(frames, span)
+    posed, used = pose_from_scene(told, images, model)
+    if used is None:
+        return config, model, None
+    posed = model_for_camera(posed)
+    if posed.height != config.height or posed.objects != config.objects:
+        model = load_height_model(posed)
+    return posed, model, used
+
+
 def run_pipeline(source_spec: str, config: Config, prefix: Path,
                  on_frame: FrameCallback | None = None) -> RunSummary:
     """Process one source end to end and return what happened; outputs go to PREFIX.*
@@ -213,6 +233,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     ``height.model = ""`` is resolved here by what the config tells of the camera
     (``core.config.model_for_camera``): every caller, benchmarks too, runs what ``heightpipe run`` runs.
     """
+    told = config
     config = model_for_camera(config)
     # The network, the stages' and the sinks' libraries first (~1.2 s): a live stream's frames
     # pile up from the moment it is opened, and those the run cannot catch up with are dropped.
@@ -225,15 +246,18 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     if scaling:
         source.stats.notes.insert(0, scaling)
     prefix.parent.mkdir(parents=True, exist_ok=True)
-    outputs = output_paths(prefix, config)
-    summary.outputs = outputs
     width, height = source.size
-    camera = build_camera(config, width, height)
-    summary.camera_source = camera.source
     try:
+        background = source.background_sample(config.objects.background_prime_frames,
+                                               config.objects.background_prime_s)
+        if reads_scene(told):
+            config, model, summary.scene_camera = _posed_from_scene(told, config, model, source, background)
+        outputs = output_paths(prefix, config)
+        summary.outputs = outputs
+        camera = build_camera(config, width, height)
+        summary.camera_source = camera.source
         chain = build_stage_chain(config, camera, model=model)
-        chain.prime(source.background_sample(config.objects.background_prime_frames,
-                                             config.objects.background_prime_s))
+        chain.prime(background)
         sinks = build_sinks(outputs, config, prefix.name, summary.objects,
                             live=isinstance(source, StreamSource))
     except BaseException:

@@ -8,20 +8,21 @@ from collections import defaultdict
 
 from pipeline.runner import RunSummary
 from stages.objects_table import ObjectRow
-from stages.sink_common import camera_state_text
+from stages.sink_common import camera_state_text, estimate_text
 
 HEIGHT_ONLY_HINT = ("with only the camera height, HeightNet v2 (the default for it) measures about twice as close "
                     "(held-out scenes: people 25 cm off against 61; README, 'Your own camera'): leave height.model "
                     "empty, or --set height.model=v2 --set objects.source=network")
 """Said when a v1 model was named for a run told only the camera height: the case v2's camera
 heads were built for (docs/results.md, 2026-12-04 eighth session)."""
-HEADS_HINT = ("the camera's pitch and focal length above are the network's guess from the pictures; "
-              "`heightpipe calibrate SOURCE --camera-height H > camera.toml` reads them from the scene's straight "
-              "lines, then `heightpipe run SOURCE --config camera.toml` (held-out scenes: people 13.8 cm off against "
-              "25; README, 'Your own camera'), or give --calibration FILE")
+HEADS_HINT = ("the camera's pitch and focal length above are the network's guess frame by frame (a live stream "
+              "is not read ahead); `heightpipe calibrate SOURCE --camera-height H --max-frames 300 > camera.toml` "
+              "reads them from the scene's straight lines, then `heightpipe run SOURCE --config camera.toml` "
+              "(held-out scenes: people 13.8 cm off against 25; README, 'Your own camera'), or give --calibration FILE")
 """Said when a v2 run decoded with its camera heads: their pitch is good to about 3-4 degrees on
 cameras they never saw (docs/results.md, 2026-12-04 ninth session), and the scene's lines read
-it to about one (tenth session)."""
+it to about one (tenth session). A file run reads them itself unless told not to
+(``pipeline/scene_camera.py``)."""
 
 
 def _size(path) -> str:
@@ -61,6 +62,10 @@ def format_summary(summary: RunSummary) -> str:
     if summary.dropped_frames:
         lines.append(f"  live source: {summary.dropped_frames} frames dropped while the pipeline was busy")
     lines.append(f"  camera: {camera_state_text(summary.camera_source, summary.height_camera)}")
+    if summary.scene_camera is not None:
+        read = summary.scene_camera
+        lines.append(f"  camera read from {read.frames} early frames: height {read.height_m:.2f} m given, "
+                     f"{estimate_text(read)}")
     if summary.camera_source == "camera-height" and summary.height_camera is None:
         lines.append(f"  hint: {HEIGHT_ONLY_HINT}")
     elif summary.height_camera is not None and summary.height_camera.source == "heads":

@@ -132,7 +132,8 @@ QUALITY_RGB = {"settled": (60, 220, 90), "settling": (255, 190, 40), "no height"
 CAMERA_STATES = {
     "calibration": "calibrated (full pose: a calibration file, or camera height and pitch)",
     "camera-height": "camera height given, no full calibration",
-    "self": "self-calibrated from walking people: heights carry its uncertainty",
+    "self": "self-calibrated (heightpipe calibrate, or read from the first frames told only the camera height): "
+            "heights carry its uncertainty",
     "none": "UNCALIBRATED: no camera height or calibration given, an assumed height is used, "
             "heights are indicative only",
 }
@@ -152,18 +153,27 @@ def height_camera_text(camera: HeightCamera, frames: bool = True) -> str:
     given, or the heads' estimate with their spread (``frames``: say how many frames it averages;
     the view leaves it out so its text changes only when the estimate does)."""
     where = HEIGHT_CAMERA_SOURCES.get(camera.source, camera.source)
-    pitch, roll = (f"{round(angle, 1) + 0.0:.1f}°" for angle in (camera.pitch_deg, camera.roll_deg))  # no "-0.0"
     if camera.source not in ("heads", "assumed"):
+        pitch, roll = (_degrees(angle) for angle in (camera.pitch_deg, camera.roll_deg))
         return (f"HeightNet v2 metres with {where} (height {camera.height_m:.2f} m, pitch "
                 f"{pitch}, roll {roll}, focal {camera.focal_px:.0f} px)")
+    text = f"HeightNet v2 metres with {where} ({camera.height_m:.2f} m) and {estimate_text(camera)}"
+    return text + (f", mean of {camera.frames} frames" if frames else "")
+
+
+def estimate_text(camera: HeightCamera) -> str:
+    """'pitch, roll, focal length from the network's camera heads and 55 straight lines of the
+    scene: pitch 20.5° ±1.3°, ...': a camera the heads estimated, with their spread."""
     focal = (f"focal {camera.focal_px:.0f} px (calibration file)" if camera.focal_given
              else f"focal {camera.focal_px:.0f} px ±{camera.focal_std_pct:.0f}%")
     estimated = "pitch, roll" if camera.focal_given else "pitch, roll, focal length"
     heads = "network's camera heads" + (f" and {camera.edges} straight lines of the scene" if camera.edges else "")
-    text = (f"HeightNet v2 metres with {where} ({camera.height_m:.2f} m) and {estimated} from the "
-            f"{heads}: pitch {pitch} ±{camera.pitch_std_deg:.1f}°, "
-            f"roll {roll} ±{camera.roll_std_deg:.1f}°, {focal}")
-    return text + (f", mean of {camera.frames} frames" if frames else "")
+    return (f"{estimated} from the {heads}: pitch {_degrees(camera.pitch_deg)} ±{camera.pitch_std_deg:.1f}°, "
+            f"roll {_degrees(camera.roll_deg)} ±{camera.roll_std_deg:.1f}°, {focal}")
+
+
+def _degrees(angle: float) -> str:
+    return f"{round(angle, 1) + 0.0:.1f}°"  # + 0.0: no "-0.0"
 
 
 def camera_state_text(source: str, height_camera: HeightCamera | None = None, frames: bool = True) -> str:

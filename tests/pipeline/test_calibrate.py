@@ -60,6 +60,27 @@ def test_told_the_height_calibrate_reads_the_camera_from_the_scene(box_video, ca
     assert "too few frames for the scene's lines (13 needed)" in capsys.readouterr().err
 
 
+def test_told_the_height_calibrate_reads_a_live_stream_too(capsys):
+    """A live stream is not read ahead by `heightpipe run`: `calibrate --camera-height
+    --max-frames N` reads its camera from the stream's first frames instead."""
+    import tomllib
+
+    from media import mjpeg_server
+    from pipeline.cli import main
+
+    server, _ = mjpeg_server([40], fps=25)
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
+        code = main(["calibrate", url, "--camera-height", "5", "--max-frames", "15", "--no-progress",
+                     "--set", "capture.reconnect_attempts=0", "--set", "capture.read_timeout_s=2"])
+    finally:
+        server.shutdown()
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert tomllib.loads(printed.out)["camera"]["self_calibrated"] is True
+    assert "camera from 15 frames" in printed.err
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--camera-height", "0"], "--camera-height must be the mounting height in metres"),
     (["--camera-height", "5", "--set", 'height.model="v1"'], "needs a HeightNet v2 model"),

@@ -210,6 +210,25 @@ def test_live_stream_runs_end_to_end_and_writes_every_output(tmp_path, model_fla
         assert (tmp_path / f"cam{suffix}").stat().st_size > 0
 
 
+def test_a_live_stream_told_only_the_height_is_not_read_ahead_and_keeps_the_heads(tmp_path):
+    """A stream's frames cannot be read twice: v2's heads guess the camera in the run, and the
+    summary points to `heightpipe calibrate --camera-height` for a better one."""
+    server, _ = mjpeg_server([30], fps=25)
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
+        result = heightpipe("run", url, "--out", tmp_path / "cam", "--no-progress", "--rerun", "off",
+                            "--camera-height", "5", "--set", "capture.reconnect_attempts=0",
+                            "--set", "capture.read_timeout_s=2")
+    finally:
+        server.shutdown()
+    assert result.returncode == 0, result.stderr
+    lines = result.stderr.splitlines()
+    assert not any(line.startswith("  camera read from") for line in lines)
+    assert "camera heads" in next(line for line in lines if line.startswith("  camera:"))
+    hint = next(line for line in lines if line.startswith("  hint:"))
+    assert "calibrate SOURCE --camera-height H --max-frames" in hint
+
+
 def test_unknown_config_key(box_video):
     assert_clean_error(heightpipe("run", box_video, "--set", "tracking.min_hitz=3"),
                        "unknown config key 'tracking.min_hitz'")
@@ -329,28 +348,46 @@ def test_a_v2_model_without_a_camera_is_one_line_naming_the_flags(box_video, con
 
 def test_a_v2_model_with_the_camera_height_says_the_heads_gave_the_rest(tmp_path, box_video, contact_model):
     result = heightpipe("run", box_video, "--out", tmp_path / "v2", "--no-progress", "--rerun", "off",
-                        "--camera-height", "5", "--max-frames", "5", "--set", f'height.model="{contact_model}"')
+                        "--camera-height", "5", "--max-frames", "5", "--set", f'height.model="{contact_model}"',
+                        "--set", "camera.read_scene_frames=0")
     assert result.returncode == 0, result.stderr
     camera_line = next(line for line in result.stderr.splitlines() if line.startswith("  camera:"))
     assert "camera heads: pitch 22.9° ±7.8°" in camera_line and "mean of 5 frames" in camera_line
 
 
-@pytest.mark.parametrize("flags, v2", [
-    (["--camera-height", "5"], True),                                    # told only the height: v2's case
-    (["--camera-height", "5", "--set", "camera.pitch_deg=20"], False),   # a full pose: v1
-    (["--camera-height", "5", "--set", 'height.model="v1"'], False),     # named: as named, and a hint
+def test_told_only_the_height_a_file_run_reads_its_camera_first_and_runs_posed(tmp_path, box_video, contact_model):
+    """The camera the heads read from the early frames poses the run: the model named decodes
+    with that pose (the self-calibrated [camera] pose), not with the heads frame by frame."""
+    result = heightpipe("run", box_video, "--out", tmp_path / "v2", "--no-progress", "--rerun", "off",
+                        "--camera-height", "5", "--max-frames", "5", "--set", f'height.model="{contact_model}"')
+    assert result.returncode == 0, result.stderr
+    lines = result.stderr.splitlines()
+    read = next(line for line in lines if line.startswith("  camera read from"))
+    assert "30 early frames: height 5.00 m given" in read and "pitch 22.9° ±" in read
+    camera_line = next(line for line in lines if line.startswith("  camera:"))
+    assert camera_line.startswith("  camera: self-calibrated") and "self-calibrated [camera] pose" in camera_line
+    assert "pitch 22.9°" in camera_line and "heads" not in camera_line
+
+
+@pytest.mark.parametrize("flags, v2, read", [
+    (["--camera-height", "5"], False, True),           # told only the height: camera read first, then posed (v1)
+    (["--camera-height", "5", "--set", "camera.read_scene_frames=0"], True, False),   # not read: v2's heads
+    (["--camera-height", "5", "--set", "camera.pitch_deg=20"], False, False),         # a full pose: v1
+    (["--camera-height", "5", "--set", 'height.model="v1"'], False, True),            # named: read, then as named
+    (["--camera-height", "5", "--set", 'height.model="v1"', "--set", "camera.read_scene_frames=0"], False, False),
 ])
-def test_the_default_model_follows_what_the_run_is_told_of_its_camera(tmp_path, box_video, flags, v2):
+def test_the_default_model_follows_what_the_run_is_told_of_its_camera(tmp_path, box_video, flags, v2, read):
     result = heightpipe("run", box_video, "--out", tmp_path / "run", "--no-progress", "--rerun", "off",
                         "--max-frames", "3", *flags)
     assert result.returncode == 0, result.stderr
     camera_line = next(line for line in result.stderr.splitlines() if line.startswith("  camera:"))
     assert ("HeightNet v2 metres" in camera_line) == v2
+    assert any(line.startswith("  camera read from") for line in result.stderr.splitlines()) == read
     hints = [line for line in result.stderr.splitlines() if line.startswith("  hint:")]
     if v2:       # the heads' camera: how to give a better one
         assert len(hints) == 1 and "heightpipe calibrate" in hints[0]
-    else:        # v1 named for the height-only case: pointed to v2; a full pose: nothing to say
-        assert len(hints) == ("v1" in " ".join(flags)) and all("height.model=v2" in h for h in hints)
+    else:        # v1 named for the height-only case, not read: pointed to v2; posed: nothing to say
+        assert len(hints) == ("v1" in " ".join(flags) and not read) and all("height.model=v2" in h for h in hints)
 
 
 @pytest.fixture

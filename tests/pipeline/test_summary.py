@@ -50,3 +50,16 @@ def test_a_v1_run_told_only_the_camera_height_is_pointed_to_v2():
     assert "--set height.model=v2 --set objects.source=network" in hint
     for source in ("calibration", "self", "none"):
         assert "hint" not in format_summary(RunSummary(source="cam", camera_source=source))
+
+
+def test_a_run_posed_from_its_first_frames_says_what_it_read():
+    from core.packets import HeightCamera
+
+    read = HeightCamera("heads", 7.84, 20.54, 1.31, 1379.0, pitch_std_deg=1.3, roll_std_deg=0.58,
+                        focal_std_pct=7.0, frames=30, edges=55)
+    text = format_summary(RunSummary(source="cam", camera_source="self", scene_camera=read))
+    assert "  camera: self-calibrated" in text
+    line = next(line for line in text.splitlines() if line.startswith("  camera read from"))
+    assert "30 early frames: height 7.84 m given" in line and "55 straight lines of the scene" in line
+    assert "pitch 20.5° ±1.3°, roll 1.3° ±0.6°, focal 1379 px ±7%" in line
+    assert "hint" not in text

@@ -1,0 +1,62 @@
+"""Told only its camera's height, a run reads the rest of the camera from the video's first frames.
+
+Most users know how high their camera hangs and nothing else. HeightNet v2's camera heads guess
+pitch, roll and focal length from each frame, and the scene's straight lines sharpen the guess
+(``stages/vertical_edges.py``); ``heightpipe calibrate --camera-height`` prints that camera as a
+``[camera]`` pose. A run over a file does the same by itself before its first frame, from frames
+spread over the video's first seconds (``[camera] read_scene_frames``, ``read_scene_s``), and
+then runs as a posed one: the model a full pose picks (``core.config.model_for_camera``: v1 and
+its moving objects), the geometry channel, heights flagged as self-calibrated.
+
+Why (docs/results.md, 2026-12-04 eleventh session): on held-out generator sequences, tracked
+people were 25-34 cm off with the heads guessing the camera during the run, about half that posed
+from the scene; v2 posed instead reads real people short (Oxford Town Centre: its detection boxes
+end above the feet), so the posed run keeps v1. A live stream cannot be read ahead: it keeps
+the heads (or takes the snippet ``heightpipe calibrate`` prints).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from core.config import HEIGHT_ONLY_MODEL, Config, told_height_only
+from core.errors import ConfigError
+from core.packets import HeightCamera
+
+MIN_PITCH_DEG = 0.5
+"""A camera read as this level or looking up is not posed: ``[camera]`` cannot say "level"
+(pitch 0 means unknown), and a CCTV camera looking up sees no ground to measure on."""
+
+
+def reads_scene(config: Config) -> bool:
+    """Whether a run with ``config`` reads its camera from the first frames (when it can)."""
+    if config.camera.read_scene_frames < 0 or not config.camera.read_scene_s > 0:
+        raise ConfigError(f"camera.read_scene_frames must be 0 (off) or more and camera.read_scene_s above 0, "
+                          f"got {config.camera.read_scene_frames} and {config.camera.read_scene_s}")
+    return config.camera.read_scene_frames > 0 and told_height_only(config.camera)
+
+
+def pose_from_scene(config: Config, images: list[np.ndarray], model=None) -> tuple[Config, HeightCamera | None]:
+    """``config`` with ``[camera]`` posed by the camera read from ``images`` (BGR frames at the
+    run's size), and that camera; ``config`` unchanged and None when it is not told only the
+    camera height, there are no images, or the camera read is level or looking up.
+
+    ``model``: a loaded v2 ``HeightNetModel`` to read with (one is loaded when it is None or a v1).
+    """
+    from stages.calibration import camera_for_run, fov_from_focal
+    from stages.contact_heights import read_scene_camera
+    from stages.heightnet_model import HeightNetModel
+
+    if not images or not told_height_only(config.camera):
+        return config, None
+    if model is None or not model.info.contact:
+        model = HeightNetModel(HEIGHT_ONLY_MODEL, config.height.threads)
+    height, width = images[0].shape[:2]
+    used = read_scene_camera(model, images, camera_for_run(config.camera, width, height))
+    if used is None or not MIN_PITCH_DEG <= used.pitch_deg < 90.0:
+        return config, None
+    posed = replace(config.camera, pitch_deg=round(used.pitch_deg, 2), roll_deg=round(used.roll_deg, 2),
+                    fov_deg=round(fov_from_focal(width, used.focal_px), 2), self_calibrated=True)
+    return replace(config, camera=posed), used

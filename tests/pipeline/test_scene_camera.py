@@ -1,0 +1,74 @@
+"""Told only the camera height, a run poses itself with the camera read from its first frames."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from core.config import Config
+from core.errors import ConfigError
+from pipeline.scene_camera import pose_from_scene, reads_scene
+
+
+def _config(**camera) -> Config:
+    config = Config()
+    return replace(config, camera=replace(config.camera, **camera))
+
+
+@pytest.mark.parametrize("camera, reads", [
+    (dict(height_m=6.0), True),                                  # the height alone: read the rest
+    (dict(height_m=6.0, read_scene_frames=0), False),            # switched off
+    (dict(height_m=6.0, pitch_deg=20.0), False),                 # a pose given
+    (dict(height_m=6.0, calibration="cam.json"), False),         # a calibration file given
+    (dict(), False),                                             # nothing known: no metres to pose
+])
+def test_only_a_run_told_just_the_camera_height_reads_the_scene(camera, reads):
+    assert reads_scene(_config(**camera)) == reads
+
+
+@pytest.mark.parametrize("camera", [dict(height_m=6.0, read_scene_frames=-1), dict(height_m=6.0, read_scene_s=0.0)])
+def test_impossible_reading_settings_are_a_config_error(camera):
+    with pytest.raises(ConfigError, match="camera.read_scene_frames must be 0"):
+        reads_scene(_config(**camera))
+
+
+def _contact_model(tmp_path, pitch_rad: float):
+    from media import make_tiny_contact_model
+    from stages.heightnet_model import HeightNetModel
+
+    offsets = np.zeros((48, 64, 2), np.float32)
+    path = make_tiny_contact_model(tmp_path / "v2.onnx", offsets, [pitch_rad, 0.02, 0.2, -4.0, -4.0, -4.0])
+    return HeightNetModel(str(path), 1)
+
+
+FRAMES = [np.full((240, 320, 3), 100, np.uint8)] * 6
+
+
+def test_the_camera_read_poses_the_config_as_a_self_calibrated_camera(tmp_path):
+    model = _contact_model(tmp_path, 0.4)
+    told = _config(height_m=6.0)
+    posed, used = pose_from_scene(told, FRAMES, model)
+    assert used is not None and used.frames == len(FRAMES) and used.height_m == pytest.approx(6.0)
+    camera = posed.camera
+    assert camera.self_calibrated and camera.height_m == 6.0 and camera.calibration == ""
+    assert camera.pitch_deg == pytest.approx(np.degrees(0.4), abs=0.01)
+    assert camera.pitch_deg == pytest.approx(used.pitch_deg, abs=0.005)
+    assert camera.roll_deg == pytest.approx(used.roll_deg, abs=0.005)
+    assert camera.fov_deg != told.camera.fov_deg           # the heads' focal length, not the default lens
+    assert (posed.height, posed.objects) == (told.height, told.objects)   # the model is the caller's to pick
+
+
+@pytest.mark.parametrize("pitch_rad", [0.0, -0.1])
+def test_a_camera_read_as_level_or_looking_up_leaves_the_run_unposed(tmp_path, pitch_rad):
+    """[camera] cannot say "level" (pitch 0 is "unknown"): such a camera keeps the heads in the run."""
+    told = _config(height_m=6.0)
+    assert pose_from_scene(told, FRAMES, _contact_model(tmp_path, pitch_rad)) == (told, None)
+
+
+def test_nothing_to_read_or_nothing_to_read_it_for_leaves_the_config_as_it_is(tmp_path):
+    model = _contact_model(tmp_path, 0.4)
+    told, posed = _config(height_m=6.0), _config(height_m=6.0, pitch_deg=20.0)
+    assert pose_from_scene(told, [], model) == (told, None)         # a live stream: no frames read ahead
+    assert pose_from_scene(posed, FRAMES, model) == (posed, None)   # a pose given: nothing to read
