@@ -233,9 +233,12 @@ class CameraConfig:
     """Told only height_m, a run over a file first reads pitch, roll and focal length from this
     many frames of its first read_scene_s seconds (v2's camera heads and the scene's straight
     lines, as ``heightpipe calibrate --camera-height`` does) and then runs posed (0 = off: v2's
-    heads guess the camera in the run). Live streams cannot be read ahead and keep the heads."""
+    heads guess the camera in the run)."""
     read_scene_s: float = 30.0
     """The span of the video's start those frames are spread over."""
+    read_scene_live_s: float = 5.0
+    """A live stream's camera is read over its first this many seconds instead, which are not
+    processed (a stream cannot be read twice; 0 = not read: v2's heads guess it in the run)."""
 
 
 @dataclass
@@ -645,8 +648,8 @@ def model_for_camera(config: Config) -> Config:
     sequences, 11.6 against 37.5 cm on Oxford Town Centre (docs/results.md, 2026-12-04 eighth
     session); with a full pose v1 and its blobs stay (Oxford: 10.5 cm against v2's 27.6). A model
     named in the config (``v1``, ``v2``, a path) is used as named, with ``[objects]`` as given.
-    A file run told only the height is posed first (``pipeline/scene_camera.py``), so this case
-    is left to live streams and ``[camera] read_scene_frames = 0``.
+    A run told only the height is posed first (``pipeline/scene_camera.py``), so this case is
+    left to ``[camera] read_scene_frames = 0`` and to scenes that could not pose the run.
     """
     if config.height.model or not told_height_only(config.camera):
         return config

@@ -15,10 +15,10 @@ guess (``stages/vertical_edges.py``: walls and poles meet at the vertical vanish
 parallel kerbs and markings on the horizon). The ``[camera]`` snippet it prints makes the next
 run a posed one (HeightNet v1, moving objects, the geometry channel): on 40 held-out generator
 sequences tracked people 13.8 cm off against 25.0 for a run told only the height, on Oxford Town
-Centre 11.4 against 11.6 (docs/results.md, 2026-12-04 tenth session). A file run told only the
+Centre 11.4 against 11.6 (docs/results.md, 2026-12-04 tenth session). A run told only the
 height now reads its camera this way by itself (``pipeline/scene_camera.py``, from its first
-frames); this command is for live streams, which cannot be read ahead, and for reading a camera
-once from a whole recording.
+frames or a stream's first seconds); this command reads one once, from a whole recording or a
+stream's first minutes, to keep.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from typing import Callable, Iterator
 from core.config import Config, model_for_camera
 from core.packets import CameraInfo, HeightCamera
 from core.stage import Sink
-from pipeline.scene_camera import pose_from_scene, reads_scene
+from pipeline.scene_camera import opening_images, pose_from_scene, reads_scene
 from pipeline.stage_chain import build_stage_chain, close_all, import_stages, load_height_model
 from stages.capture import CaptureStats, FrameSource, StreamSource, open_source
 from stages.objects_table import ObjectTable
@@ -208,14 +208,27 @@ FrameCallback = Callable[[int, "int | None", float], None]
 """on_frame(frames processed, frames expected or None, elapsed seconds)."""
 
 
-def _posed_from_scene(told: Config, config: Config, model, source: FrameSource, background: list):
-    """Told only the camera height (``told``), a file's camera read from its first frames
+def _scene_images(told: Config, source: FrameSource, frames: Iterator, background: list) -> list:
+    """The frames a run told only the camera height reads its camera from: a file's spread over
+    its first ``read_scene_s`` (the background's, when they are the same frames); a live stream's
+    first ``read_scene_live_s`` seconds, taken from ``frames`` (they are not processed: the
+    stream's frames cannot be read twice, and the run must not fall behind them)."""
+    count, span = told.camera.read_scene_frames, told.camera.read_scene_s
+    if isinstance(source, StreamSource):
+        images, taken = opening_images(frames, count, told.camera.read_scene_live_s)
+        if taken:
+            source.stats.notes.append(f"the first {taken} frames ({told.camera.read_scene_live_s:g} s) read the "
+                                      "camera and were not processed")
+        return images
+    same = (count, span) == (told.objects.background_prime_frames, told.objects.background_prime_s)
+    return background if same else source.background_sample(count, span)
+
+
+def _posed_from_scene(told: Config, config: Config, model, images: list):
+    """Told only the camera height (``told``), the camera read from ``images``
     (``pipeline/scene_camera.py``): the posed run's config, its model (the one loaded is kept if
     the posed config names the same) and the camera read; ``config`` and ``model`` as they were
-    when the source cannot be read ahead or the camera read cannot pose the run."""
-    frames, span = told.camera.read_scene_frames, told.camera.read_scene_s
-    same = (frames, span) == (told.objects.background_prime_frames, told.objects.background_prime_s)
-    images = background if same else source.background_sample(frames, span)
+    when there are no images or the camera read cannot pose the run."""
     posed, used = pose_from_scene(told, images, model)
     if used is None:
         return config, model, None
@@ -248,10 +261,12 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     prefix.parent.mkdir(parents=True, exist_ok=True)
     width, height = source.size
     try:
+        frames = source.frames()
         background = source.background_sample(config.objects.background_prime_frames,
                                                config.objects.background_prime_s)
         if reads_scene(told):
-            config, model, summary.scene_camera = _posed_from_scene(told, config, model, source, background)
+            images = _scene_images(told, source, frames, background)
+            config, model, summary.scene_camera = _posed_from_scene(told, config, model, images)
         outputs = output_paths(prefix, config)
         summary.outputs = outputs
         camera = build_camera(config, width, height)
@@ -271,9 +286,9 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
 
         overlapped = OverlappedChain(chain, camera, config.run.queue_frames,
                                      live=isinstance(source, StreamSource))
-        packets = overlapped.packets(source.frames())
+        packets = overlapped.packets(frames)
     else:
-        packets = chain.run(source.frames(), camera)
+        packets = chain.run(frames, camera)
     summary.overlapped = overlapped is not None
     start = time.perf_counter()
     try:

@@ -4,20 +4,21 @@ Most users know how high their camera hangs and nothing else. HeightNet v2's cam
 pitch, roll and focal length from each frame, and the scene's straight lines sharpen the guess
 (``stages/vertical_edges.py``); ``heightpipe calibrate --camera-height`` prints that camera as a
 ``[camera]`` pose. A run over a file does the same by itself before its first frame, from frames
-spread over the video's first seconds (``[camera] read_scene_frames``, ``read_scene_s``), and
+spread over the video's first seconds (``[camera] read_scene_frames``, ``read_scene_s``), a live
+stream from its first seconds (``read_scene_live_s``: those frames are not processed), and
 then runs as a posed one: the model a full pose picks (``core.config.model_for_camera``: v1 and
 its moving objects), the geometry channel, heights flagged as self-calibrated.
 
 Why (docs/results.md, 2026-12-04 eleventh session): on held-out generator sequences, tracked
 people were 25-34 cm off with the heads guessing the camera during the run, about half that posed
 from the scene; v2 posed instead reads real people short (Oxford Town Centre: its detection boxes
-end above the feet), so the posed run keeps v1. A live stream cannot be read ahead: it keeps
-the heads (or takes the snippet ``heightpipe calibrate`` prints).
+end above the feet), so the posed run keeps v1.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Iterator
 
 import numpy as np
 
@@ -32,9 +33,11 @@ MIN_PITCH_DEG = 0.5
 
 def reads_scene(config: Config) -> bool:
     """Whether a run with ``config`` reads its camera from the first frames (when it can)."""
-    if config.camera.read_scene_frames < 0 or not config.camera.read_scene_s > 0:
-        raise ConfigError(f"camera.read_scene_frames must be 0 (off) or more and camera.read_scene_s above 0, "
-                          f"got {config.camera.read_scene_frames} and {config.camera.read_scene_s}")
+    camera = config.camera
+    if camera.read_scene_frames < 0 or not camera.read_scene_s > 0 or camera.read_scene_live_s < 0:
+        raise ConfigError(f"camera.read_scene_frames must be 0 (off) or more, camera.read_scene_s above 0 and "
+                          f"camera.read_scene_live_s 0 (off) or more, got {camera.read_scene_frames}, "
+                          f"{camera.read_scene_s} and {camera.read_scene_live_s}")
     return config.camera.read_scene_frames > 0 and told_height_only(config.camera)
 
 
@@ -60,3 +63,22 @@ def pose_from_scene(config: Config, images: list[np.ndarray], model=None) -> tup
     posed = replace(config.camera, pitch_deg=round(used.pitch_deg, 2), roll_deg=round(used.roll_deg, 2),
                     fov_deg=round(fov_from_focal(width, used.focal_px), 2), self_calibrated=True)
     return replace(config, camera=posed), used
+
+
+def opening_images(frames: Iterator, count: int, span_s: float) -> tuple[list[np.ndarray], int]:
+    """Up to ``count`` images spread over the first ``span_s`` seconds of ``frames`` (``Frame``s
+    of a live stream, taken from it), and how many frames were taken. Each slot of ``span_s /
+    count`` seconds keeps its first frame, so nothing piles up in memory at any frame rate."""
+    if count <= 0 or span_s <= 0:
+        return [], 0
+    images: list[np.ndarray] = []
+    taken, start = 0, None
+    for frame in frames:
+        taken += 1
+        start = frame.time_s if start is None else start
+        elapsed = frame.time_s - start
+        if elapsed >= len(images) * span_s / count and len(images) < count:
+            images.append(frame.image)
+        if elapsed >= span_s * (count - 1) / count:
+            break
+    return images, taken

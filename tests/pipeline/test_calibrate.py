@@ -61,8 +61,8 @@ def test_told_the_height_calibrate_reads_the_camera_from_the_scene(box_video, ca
 
 
 def test_told_the_height_calibrate_reads_a_live_stream_too(capsys):
-    """A live stream is not read ahead by `heightpipe run`: `calibrate --camera-height
-    --max-frames N` reads its camera from the stream's first frames instead."""
+    """`calibrate --camera-height --max-frames N` reads a stream's camera from its first frames,
+    to keep (a run reads only its first seconds)."""
     import tomllib
 
     from media import mjpeg_server

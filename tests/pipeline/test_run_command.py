@@ -210,23 +210,36 @@ def test_live_stream_runs_end_to_end_and_writes_every_output(tmp_path, model_fla
         assert (tmp_path / f"cam{suffix}").stat().st_size > 0
 
 
-def test_a_live_stream_told_only_the_height_is_not_read_ahead_and_keeps_the_heads(tmp_path):
-    """A stream's frames cannot be read twice: v2's heads guess the camera in the run, and the
-    summary points to `heightpipe calibrate --camera-height` for a better one."""
-    server, _ = mjpeg_server([30], fps=25)
+@pytest.mark.parametrize("live_s", [1, 0])
+def test_a_live_stream_told_only_the_height_reads_its_camera_from_its_first_second(tmp_path, live_s):
+    """A stream's frames cannot be read twice: its first ``read_scene_live_s`` seconds read the
+    camera and the run starts after them, posed; with 0 v2's heads guess the camera in the run,
+    and the summary points to `heightpipe calibrate --camera-height` for a better one."""
+    server, _ = mjpeg_server([75], fps=25)
     try:
         url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
         result = heightpipe("run", url, "--out", tmp_path / "cam", "--no-progress", "--rerun", "off",
                             "--camera-height", "5", "--set", "capture.reconnect_attempts=0",
-                            "--set", "capture.read_timeout_s=2")
+                            "--set", "capture.read_timeout_s=2", "--set", f"camera.read_scene_live_s={live_s}")
     finally:
         server.shutdown()
     assert result.returncode == 0, result.stderr
     lines = result.stderr.splitlines()
-    assert not any(line.startswith("  camera read from") for line in lines)
-    assert "camera heads" in next(line for line in lines if line.startswith("  camera:"))
-    hint = next(line for line in lines if line.startswith("  hint:"))
-    assert "calibrate SOURCE --camera-height H --max-frames" in hint
+    camera_line = next(line for line in lines if line.startswith("  camera:"))
+    processed = int(re.search(r"processed (\d+) frames", result.stderr).group(1))
+    dropped = re.search(r"(\d+) frames dropped while the pipeline was busy", result.stderr)
+    processed += int(dropped.group(1)) if dropped else 0
+    if live_s:
+        taken = int(re.search(r"the first (\d+) frames \(1 s\) read the camera and were not processed",
+                              result.stderr).group(1))
+        assert 20 <= taken <= 30 and processed + taken == 75, result.stderr
+        assert any(line.startswith("  camera read from") for line in lines)
+        assert camera_line.startswith("  camera: self-calibrated")
+    else:
+        assert processed == 75 and not any(line.startswith("  camera read from") for line in lines)
+        assert "camera heads" in camera_line
+        hint = next(line for line in lines if line.startswith("  hint:"))
+        assert "calibrate SOURCE --camera-height H --max-frames" in hint
 
 
 def test_unknown_config_key(box_video):

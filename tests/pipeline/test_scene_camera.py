@@ -28,7 +28,8 @@ def test_only_a_run_told_just_the_camera_height_reads_the_scene(camera, reads):
     assert reads_scene(_config(**camera)) == reads
 
 
-@pytest.mark.parametrize("camera", [dict(height_m=6.0, read_scene_frames=-1), dict(height_m=6.0, read_scene_s=0.0)])
+@pytest.mark.parametrize("camera", [dict(height_m=6.0, read_scene_frames=-1), dict(height_m=6.0, read_scene_s=0.0),
+                                    dict(height_m=6.0, read_scene_live_s=-1.0)])
 def test_impossible_reading_settings_are_a_config_error(camera):
     with pytest.raises(ConfigError, match="camera.read_scene_frames must be 0"):
         reads_scene(_config(**camera))
@@ -72,3 +73,31 @@ def test_nothing_to_read_or_nothing_to_read_it_for_leaves_the_config_as_it_is(tm
     told, posed = _config(height_m=6.0), _config(height_m=6.0, pitch_deg=20.0)
     assert pose_from_scene(told, [], model) == (told, None)         # a live stream: no frames read ahead
     assert pose_from_scene(posed, FRAMES, model) == (posed, None)   # a pose given: nothing to read
+
+
+def _stream(fps: float, seconds: float):
+    from core.packets import Frame
+
+    for index in range(int(fps * seconds)):
+        yield Frame(index, index / fps, np.full((4, 4, 3), index, np.uint8))
+
+
+@pytest.mark.parametrize("fps, count, span, kept, taken", [
+    (25.0, 5, 2.0, [0, 10, 20, 30, 40], 41),    # one frame per 0.4 s slot, stops once the last slot began
+    (25.0, 30, 2.0, None, 50),                  # slots shorter than two frames: one frame each
+    (2.0, 30, 5.0, [0, 1, 2, 3, 4, 5, 6, 7, 8, 9], 10),   # a slow stream: what there is, then it ends
+    (25.0, 0, 2.0, [], 0),                      # off: nothing taken from the stream
+])
+def test_a_live_stream_gives_its_first_seconds_spread_over_slots(fps, count, span, kept, taken):
+    from pipeline.scene_camera import opening_images
+
+    stream = _stream(fps, 6.0 if fps > 2 else 5.0)
+    images, used = opening_images(stream, count, span)
+    assert used == taken
+    values = [int(image[0, 0, 0]) for image in images]
+    if kept is not None:
+        assert values == kept
+    else:
+        assert len(values) == 30 and values == sorted(set(values)) and values[-1] == 49
+    following = next(stream, None)            # the stream goes on where the reading stopped
+    assert following is None if fps == 2.0 else following.index == taken
