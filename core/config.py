@@ -223,6 +223,14 @@ class CameraConfig:
     """Rotation about the optical axis, positive when the horizon's right end is higher."""
     height_std_m: float = 0.0
     """Uncertainty of height_m (self-calibration prints it; 0 = exact)."""
+    pitch_std_deg: float = 0.0
+    """Uncertainty of pitch_deg (a self-calibrated pose: ``heightpipe calibrate``, or read from the
+    first frames; 0 = exact). With roll_std_deg, focal_std_pct and height_std_m it widens every
+    height's reported std by the error the camera makes on it (the same on every frame)."""
+    roll_std_deg: float = 0.0
+    """Uncertainty of roll_deg (0 = exact)."""
+    focal_std_pct: float = 0.0
+    """Uncertainty of the focal length (fov_deg), per cent (0 = exact)."""
     self_calibrated: bool = False
     """height_m/pitch_deg/roll_deg came from `heightpipe calibrate`: heights are flagged as such."""
     point_noise_px: float = 2.0

@@ -207,6 +207,10 @@ class Detection:
     min_height_m: float | None = None
     """Lower bound on the height when the foot is cut or hidden: the true foot lies lower in the
     image, nearer the camera, where the top's ray stands higher (the geometry; calibrated cameras)."""
+    camera_share: float = 0.0
+    """Relative std of this object's heights from the camera's stated uncertainty (a self-calibrated
+    pose; 0 = exact): the same error on every frame and every channel measured with that camera, so
+    the tracker adds it to the std it reports rather than fusing it (``stages/geometry.py``)."""
     ground_xy_m: tuple[float, float] | None = None
     """Foot point on the ground plane in world metres (calibrated cameras only)."""
     mask: np.ndarray | None = None

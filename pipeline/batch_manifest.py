@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from core.config import NETWORK_OBJECTS_KEYS, Config
+from core.config import NETWORK_OBJECTS_KEYS, Config, told_height_only
 from core.errors import HeightpipeError
 
 MANIFEST_NAME = "manifest.json"
@@ -65,6 +65,14 @@ def config_fingerprint(config: Config) -> str:
         relevant["height"].pop("input_width")
     relevant["output"].pop("progress")
     relevant["output"].pop("directory")
+    # Keys that came later and change nothing where they are not read: archives made before them
+    # are not redone for them alone. The reading keys are read only by runs told just the height.
+    if not told_height_only(config.camera):
+        for key in ("read_scene_frames", "read_scene_s", "read_scene_live_s"):
+            relevant["camera"].pop(key)
+    for key in ("pitch_std_deg", "roll_std_deg", "focal_std_pct"):
+        if not relevant["camera"][key]:
+            relevant["camera"].pop(key)
     # Object extraction's keys are hashed under "tracking", where they were before they got their
     # own [objects] section: archives processed before that are not redone for the move alone.
     objects = dataclasses.asdict(config.objects)

@@ -172,11 +172,14 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     print("\n".join([
         "[camera]",
         f"height_m = {used.height_m:.2f}            # given",
-        f"pitch_deg = {used.pitch_deg:.2f}           # +- {used.pitch_std_deg:.2f} (network heads, {lines_note})",
-        f"roll_deg = {used.roll_deg:.2f}            # +- {used.roll_std_deg:.2f}",
+        f"pitch_deg = {used.pitch_deg:.2f}           # network heads, {lines_note}",
+        f"pitch_std_deg = {used.pitch_std_deg:.2f}",
+        f"roll_deg = {used.roll_deg:.2f}",
+        f"roll_std_deg = {used.roll_std_deg:.2f}",
         *([f"calibration = {toml_string(config.camera.calibration)}   # intrinsics (its pose is not used)"]
           if config.camera.calibration else
-          [f"fov_deg = {fov:.1f}             # focal {used.focal_px:.0f} px +- {used.focal_std_pct:.0f} %"]),
+          [f"fov_deg = {fov:.1f}             # focal {used.focal_px:.0f} px",
+           f"focal_std_pct = {used.focal_std_pct:.1f}"]),
         "self_calibrated = true",
     ]))
     print(f"heightpipe: camera from {used.frames} frames: pitch {used.pitch_deg:.1f} +- {used.pitch_std_deg:.1f} deg, "

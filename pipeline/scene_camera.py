@@ -61,7 +61,9 @@ def pose_from_scene(config: Config, images: list[np.ndarray], model=None) -> tup
     if used is None or not MIN_PITCH_DEG <= used.pitch_deg < 90.0:
         return config, None
     posed = replace(config.camera, pitch_deg=round(used.pitch_deg, 2), roll_deg=round(used.roll_deg, 2),
-                    fov_deg=round(fov_from_focal(width, used.focal_px), 2), self_calibrated=True)
+                    fov_deg=round(fov_from_focal(width, used.focal_px), 2), self_calibrated=True,
+                    pitch_std_deg=round(used.pitch_std_deg, 2), roll_std_deg=round(used.roll_std_deg, 2),
+                    focal_std_pct=round(used.focal_std_pct, 1))
     return replace(config, camera=posed), used
 
 

@@ -35,7 +35,8 @@ import numpy as np
 
 from core.config import CameraConfig
 from core.packets import BOX, GEOMETRY, NETWORK, CameraInfo, Detection, FramePacket, Measurement
-from stages.calibration import has_distortion, heights_from_foot_top, is_calibrated, undistort_pixels
+from stages.calibration import (angles_from_rotation, camera_from_pose, has_distortion, heights_from_foot_top,
+                                is_calibrated, undistort_pixels)
 from stages.vehicle_geometry import vehicle_box
 
 
@@ -96,13 +97,16 @@ class GeometryMeasurer:
     Parameters
     ----------
     config : CameraConfig
-        ``point_noise_px`` (std of foot and top points) and ``height_std_m`` (camera height
-        uncertainty, from self-calibration) set the noise.
+        ``point_noise_px`` (std of foot and top points) sets the noise; ``height_std_m``,
+        ``pitch_std_deg``, ``roll_std_deg`` and ``focal_std_pct`` (a self-calibrated pose's
+        uncertainty) each detection's ``camera_share``.
     """
 
     def __init__(self, config: CameraConfig):
         self.point_noise_px = config.point_noise_px
         self.camera_height_std_m = config.height_std_m
+        self.pose_std = (config.pitch_std_deg, config.roll_std_deg, config.focal_std_pct)
+        self._shifted: tuple[CameraInfo, list[CameraInfo]] | None = None
         self.network_scale = NetworkScale() if config.rescale_network else None
 
     def process(self, packet: FramePacket) -> FramePacket:
@@ -129,6 +133,7 @@ class GeometryMeasurer:
 
         heights, ground = heights_from_foot_top(camera, foot, top)
         noise = self._pixel_noise(camera, foot, top)
+        camera_share = self._camera_share(camera, foot, top, heights)
         distance = np.hypot(*(ground - (-camera.R.T @ camera.t)[:2]).T)
         widths = _widths_at_ground(camera, ground, np.array([d.box[2] for d in detections], dtype=float))
         for i, detection in enumerate(detections):
@@ -152,7 +157,11 @@ class GeometryMeasurer:
                 continue
             extent = CONSTANTS.horizontal_extent_m.get(detection.cls, CONSTANTS.horizontal_extent_m["other"])
             shape_error = self._top_offset_error(camera.height_m, height, distance[i], extent)
+            # The camera height's std also stays in the noise, where it weighs the geometry against
+            # the network (Oxford, self-calibrated: 8.7 cm with it there, 11.9 with it only in the share).
             scale_error = height * self.camera_height_std_m / camera.height_m
+            if np.isfinite(camera_share[i]):
+                detection.camera_share = float(camera_share[i])
             detection.add_height(GEOMETRY, Measurement(
                 float(height), float(np.sqrt(noise[i] ** 2 + shape_error ** 2 + scale_error ** 2)),
                 source=GEOMETRY, bias_m=float(noise[i])))
@@ -177,6 +186,43 @@ class GeometryMeasurer:
                                               bias_m=float(np.hypot(pixel, shape_bias))))
         detection.vehicle_axis_xy = fitted.axis_xy
         detection.vehicle_length_assumed = fitted.length_assumed
+
+    def _camera_share(self, camera: CameraInfo, foot: np.ndarray, top: np.ndarray,
+                      heights: np.ndarray) -> np.ndarray:
+        """Relative std of each height from the pose's stated uncertainty: the camera height's
+        (heights scale with it) and, one at a time, pitch's, roll's and the focal length's (each
+        moved by its std; their errors taken as independent). Zero for an exact pose.
+
+        Why not in the measurement's noise: the error is the same on every frame (frames would
+        average it away) and on every channel measured with this camera (the network is rescaled
+        to the geometry), so fusing it would change nothing but the std; the tracker adds it there.
+        (The camera height's part is in the noise too, as it was before the share: see ``measure``.)
+        """
+        with np.errstate(divide="ignore", invalid="ignore"):
+            share2 = np.full(len(heights), (self.camera_height_std_m / camera.height_m) ** 2)
+            for shifted in self._shifted_cameras(camera):
+                moved, _ = heights_from_foot_top(shifted, foot, top)
+                share2 = share2 + ((moved - heights) / heights) ** 2
+        return np.sqrt(share2)
+
+    def _shifted_cameras(self, camera: CameraInfo) -> list[CameraInfo]:
+        """``camera`` with pitch, roll and focal length each moved by its std (those not zero);
+        only for a pose given in ``[camera]`` (a calibration file's is exact). Made once a camera."""
+        if self._shifted is not None and self._shifted[0] is camera:
+            return self._shifted[1]
+        pitch_std, roll_std, focal_std = self.pose_std
+        shifted = []
+        if camera.pose_from == "config" and (pitch_std or roll_std or focal_std):
+            pitch, roll, yaw = angles_from_rotation(camera.R)
+            for d_pitch, d_roll, d_focal in ((pitch_std, 0.0, 0.0), (0.0, roll_std, 0.0), (0.0, 0.0, focal_std)):
+                if d_pitch or d_roll or d_focal:
+                    K = np.array(camera.K, float)
+                    K[0, 0] *= 1.0 + d_focal / 100.0
+                    K[1, 1] *= 1.0 + d_focal / 100.0
+                    shifted.append(camera_from_pose(camera.width, camera.height, K, camera.height_m,
+                                                    pitch + d_pitch, roll + d_roll, yaw, dist=camera.dist))
+        self._shifted = (camera, shifted)
+        return shifted
 
     def _pixel_noise(self, camera: CameraInfo, foot: np.ndarray, top: np.ndarray) -> np.ndarray:
         """Std of the height from independent noise on the four point coordinates (central differences)."""

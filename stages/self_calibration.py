@@ -136,14 +136,17 @@ class SelfCalibration:
             f"height_m = {self.height_m:.2f}            # self-calibrated: +- {self.height_std_m:.2f} m "
             f"({self.n_tracks} people, prior {self.prior.mean_m:.2f} +- {self.prior.std_m:.2f} m)",
             f"height_std_m = {self.height_std_m:.2f}",
-            f"pitch_deg = {self.pitch_deg:.2f}           # +- {self.pitch_std_deg:.2f}",
-            f"roll_deg = {self.roll_deg:.2f}            # +- {self.roll_std_deg:.2f}",
+            f"pitch_deg = {self.pitch_deg:.2f}",
+            f"pitch_std_deg = {self.pitch_std_deg:.2f}",
+            f"roll_deg = {self.roll_deg:.2f}",
+            f"roll_std_deg = {self.roll_std_deg:.2f}",
         ]
         if calibration:
             lines.append(f"calibration = {toml_string(calibration)}   # intrinsics (its pose is not used)")
         elif self.focal_source == "estimated":
             fov_std = math.degrees(self.width * self.focal_std_px / (focal ** 2 + (self.width / 2) ** 2))
             lines.append(f"fov_deg = {fov:.1f}             # +- {fov_std:.1f} (focal {focal:.0f} px, estimated)")
+            lines.append(f"focal_std_pct = {100.0 * self.focal_std_px / focal:.1f}")
         else:
             lines.append(f"fov_deg = {fov:.1f}             # assumed, not estimated (focal {focal:.0f} px)")
         lines.append("self_calibrated = true")

@@ -155,6 +155,8 @@ class _TrackState:
     """Whether the class at the last height update let the foot/top geometry in (see ``_update_height``)."""
     height_rejections: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     """Per channel: (height, noise) of the measurements the height gate rejected in a row."""
+    camera_share: float = 0.0
+    """The last detection's ``camera_share``: the camera's error on the height, added to its std."""
 
     @property
     def cls(self) -> str:
@@ -167,7 +169,8 @@ class _TrackState:
             box=self.motion.box,
             cls=self.cls,
             height_m=self.height.height_m if has_height else float("nan"),
-            height_std_m=self.height.std_m if has_height else float("inf"),
+            height_std_m=(float(np.hypot(self.height.std_m, self.camera_share * self.height.height_m))
+                          if has_height else float("inf")),
             confirmed=self.confirmed,
             ground_xy_m=self.ground_xy_m,
             height_source=self.height.source if has_height else "none",
@@ -449,6 +452,8 @@ class ObjectTracker:
             track.height = None
             track.height_rejections.clear()
         track.height_geometry_trusted = not boxed
+        if detection.camera_share > 0:
+            track.camera_share = detection.camera_share
         for channel, measurement in _channels_to_fuse(track, detection, boxed, self.config.ignore_channels):
             height, noise = measurement.value_m, measurement.noise_m
             if top_lost:

@@ -337,6 +337,18 @@ def test_what_a_rerun_redoes(tmp_path):
     stricter = Config()
     stricter.objects.source, stricter.objects.score_person = "network", 0.9
     assert config_fingerprint(stricter) != config_fingerprint(network)
+    # The scene-reading keys count only for a camera told just its height; a pose's spread counts.
+    not_read = Config()
+    not_read.camera.read_scene_frames = 0
+    assert reason("/a.mp4", fp=config_fingerprint(not_read)) is None
+    told = Config()
+    told.camera.height_m = 6.0
+    told_not_read = Config()
+    told_not_read.camera.height_m, told_not_read.camera.read_scene_frames = 6.0, 0
+    assert config_fingerprint(told) != config_fingerprint(told_not_read)
+    spread = Config()
+    spread.camera.pitch_std_deg = 1.2
+    assert reason("/a.mp4", fp=config_fingerprint(spread)) == "config changed"
     assert reason("/b.mp4") is None and reason("/b.mp4", retry_failed=True) == "retry failed"
     (tmp_path / "videos" / "a-1.mcap").unlink()
     assert reason("/a.mp4").startswith("output missing")

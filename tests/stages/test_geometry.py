@@ -182,7 +182,7 @@ def test_pixel_noise_is_propagated_honestly():
     assert all(d.heights[GEOMETRY].noise_m >= s for d, s in zip(people, stated))
 
 
-def test_self_calibrated_camera_height_uncertainty_widens_the_noise():
+def test_self_calibrated_camera_height_uncertainty_widens_the_noise_and_is_a_share_of_the_height():
     config = CameraConfig(height_m=6.0, pitch_deg=25.0, self_calibrated=True)
     camera = camera_for_run(config, 1280, 720)
     exact = _person_at(camera, 0, 12, 1.75)
@@ -191,10 +191,40 @@ def test_self_calibrated_camera_height_uncertainty_widens_the_noise():
     GeometryMeasurer(dataclasses.replace(config, height_std_m=0.6)).process(packet_with(camera, [uncertain]))
     wide, narrow = uncertain.heights[GEOMETRY], exact.heights[GEOMETRY]
     assert wide.value_m == narrow.value_m
-    # 10 % of the camera height is 10 % of the object's height, added in quadrature.
+    # 10 % of the camera height is 10 % of the object's height, added in quadrature ...
     assert wide.noise_m == pytest.approx(np.hypot(narrow.noise_m, 0.175), rel=1e-6)
     # ... but it is no bias of this object: every object and the network's scale share it.
     assert wide.bias_m == narrow.bias_m <= narrow.noise_m
+    # It is the same on every frame and every channel: the tracker adds it to the std it reports
+    # (frames must not average it away).
+    assert (exact.camera_share, uncertain.camera_share) == (0.0, pytest.approx(0.1))
+
+
+@pytest.mark.parametrize("stds, moved", [
+    (dict(pitch_std_deg=1.0), dict(pitch_deg=26.0)),
+    (dict(roll_std_deg=1.0), dict(roll_deg=1.0)),
+    (dict(focal_std_pct=5.0), dict(fov_deg=None)),
+])
+def test_a_self_calibrated_pose_s_stated_spread_is_the_height_error_it_makes(stds, moved):
+    """Each of pitch, roll and focal length moved by its std changes a person's geometry height by
+    what ``camera_share`` says; a calibration file's pose is exact and makes none."""
+    config = CameraConfig(height_m=6.0, pitch_deg=25.0, self_calibrated=True, **stds)
+    camera = camera_for_run(config, 1280, 720)
+    person = _person_at(camera, 2, 12, 1.75)
+    GeometryMeasurer(config).process(packet_with(camera, [person]))
+    if moved.get("fov_deg", 0) is None:   # 5 % longer focal length, the same pose
+        K = camera.K.copy()
+        K[:2, :2] *= 1.05
+        other = dataclasses.replace(camera, K=K)
+    else:
+        other = camera_for_run(dataclasses.replace(config, **moved), 1280, 720)
+    height, _ = heights_from_foot_top(other, np.array([person.foot_xy]), np.array([person.top_xy]))
+    assert person.camera_share == pytest.approx(abs(height[0] / 1.75 - 1.0), rel=1e-6)
+    assert person.camera_share > 0.001
+    from_file = dataclasses.replace(camera, pose_from="")           # a calibration file's pose
+    again = _person_at(camera, 2, 12, 1.75)
+    GeometryMeasurer(config).process(packet_with(from_file, [again]))
+    assert again.camera_share == 0.0
 
 
 def test_long_objects_get_more_noise_than_people():

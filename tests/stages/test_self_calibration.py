@@ -209,10 +209,12 @@ def test_snippet_configures_a_self_calibrated_camera_that_measures_people(tmp_pa
     packet = FramePacket(frame=Frame(0, 0.0, np.zeros((720, 1280, 3), np.uint8)), camera=run_camera,
                          detections=detections)
     GeometryMeasurer(config.camera).process(packet)
+    assert config.camera.pitch_std_deg > 0 and config.camera.roll_std_deg > 0
     for d in detections:
         geometry = d.heights[GEOMETRY]
         assert abs(geometry.value_m - 1.80) < 2.5 * geometry.noise_m
         assert geometry.noise_m > 1.80 * result.height_std_m / result.height_m   # the scale's share
+        assert d.camera_share > result.height_std_m / result.height_m   # ... and the pose's, for the std
 
 
 def test_calibrate_command_reports_too_few_people(box_video, capsys):

@@ -489,6 +489,23 @@ def test_the_geometry_bias_prior_is_its_per_object_part_not_the_shared_camera_he
     assert tracks[0].height_m == pytest.approx(expected, abs=0.01)
 
 
+def test_the_cameras_share_of_the_height_widens_the_reported_std_not_the_height():
+    """A self-calibrated pose errs the same way on every frame: the std a track reports keeps that
+    share of its height (frames do not average it away), the height itself is the same."""
+    def run(share: float):
+        tracker = ObjectTracker(TrackingConfig(min_hits=1))
+        for frame in range(30):
+            detection = _detection(10 + 2 * frame, 10, 1.70, noise_m=0.10)
+            detection.add_height(GEOMETRY, Measurement(1.80, 0.10, "test"))
+            detection.camera_share = share
+            tracks = tracker.update([detection])
+        return tracks[0]
+
+    exact, unsure = run(0.0), run(0.05)
+    assert unsure.height_m == exact.height_m
+    assert unsure.height_std_m == pytest.approx(np.hypot(exact.height_std_m, 0.05 * exact.height_m))
+
+
 def test_damaged_frames_carry_the_track_but_fuse_no_height():
     stage = TrackingStage(TrackingConfig(min_hits=1))
     image = np.zeros((240, 320, 3), np.uint8)
