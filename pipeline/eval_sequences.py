@@ -161,7 +161,8 @@ def run_setup(sequence, config: Config, known: str = "true"):
         indices = background_indices(len(sequence), sequence.meta.fps, told.camera.read_scene_frames,
                                      told.camera.read_scene_s)
     images = [cv2.cvtColor(sequence.frame(i).rgb, cv2.COLOR_RGB2BGR) for i in indices]
-    config = model_for_camera(pose_from_scene(told, images)[0])
+    # calibrate's snippet poses a run even without lines (it says they were missing).
+    config = model_for_camera(pose_from_scene(told, images, needs_lines=known == "height")[0])
     camera = sequence.meta.camera
     return config, camera_for_run(config.camera, camera.width, camera.height)
 

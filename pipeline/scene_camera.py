@@ -10,9 +10,10 @@ then runs as a posed one: the model a full pose picks (``core.config.model_for_c
 its moving objects), the geometry channel, heights flagged as self-calibrated.
 
 Why (docs/results.md, 2026-12-04 eleventh session): on held-out generator sequences, tracked
-people were 25-34 cm off with the heads guessing the camera during the run, about half that posed
-from the scene; v2 posed instead reads real people short (Oxford Town Centre: its detection boxes
-end above the feet), so the posed run keeps v1.
+people were 25-34 cm off with the heads guessing the camera during the run, 15-24 posed from
+the scene; v2 posed instead reads real people short (Oxford Town Centre: its detection boxes end
+above the feet), so the posed run keeps v1. Only a camera the scene's straight lines agreed with
+poses a run (``pose_from_scene``).
 """
 
 from __future__ import annotations
@@ -41,10 +42,18 @@ def reads_scene(config: Config) -> bool:
     return config.camera.read_scene_frames > 0 and told_height_only(config.camera)
 
 
-def pose_from_scene(config: Config, images: list[np.ndarray], model=None) -> tuple[Config, HeightCamera | None]:
+def pose_from_scene(config: Config, images: list[np.ndarray], model=None,
+                    needs_lines: bool = True) -> tuple[Config, HeightCamera | None]:
     """``config`` with ``[camera]`` posed by the camera read from ``images`` (BGR frames at the
     run's size), and that camera; ``config`` unchanged and None when it is not told only the
-    camera height, there are no images, or the camera read is level or looking up.
+    camera height, there are no images, the camera read is level or looking up, or (with
+    ``needs_lines``) no straight lines of the scene agreed with the heads.
+
+    Why a run needs the lines: without them the camera read is the heads' guess alone, which v2
+    makes anyway frame by frame, its offsets erring together with it; posed with that guess (v1,
+    moving objects) the held-out scenes without lines (night, rain, parks: 4 of trk_val20, 2 of
+    trk_test40) tracked worse (HOTA 0.20 against 0.28, 0.28 against 0.45) for no better height.
+    ``heightpipe calibrate --camera-height`` prints even that guess, marked worth checking.
 
     ``model``: a loaded v2 ``HeightNetModel`` to read with (one is loaded when it is None or a v1).
     """
@@ -58,7 +67,7 @@ def pose_from_scene(config: Config, images: list[np.ndarray], model=None) -> tup
         model = HeightNetModel(HEIGHT_ONLY_MODEL, config.height.threads)
     height, width = images[0].shape[:2]
     used = read_scene_camera(model, images, camera_for_run(config.camera, width, height))
-    if used is None or not MIN_PITCH_DEG <= used.pitch_deg < 90.0:
+    if used is None or not MIN_PITCH_DEG <= used.pitch_deg < 90.0 or (needs_lines and not used.edges):
         return config, None
     posed = replace(config.camera, pitch_deg=round(used.pitch_deg, 2), roll_deg=round(used.roll_deg, 2),
                     fov_deg=round(fov_from_focal(width, used.focal_px), 2), self_calibrated=True,

@@ -71,6 +71,48 @@ def write_moving_box_video(path: Path, frames: int = 30, size=(160, 120), fps: f
     return path
 
 
+def project(camera, points):
+    """World points (N x 3) to pixels through a ``stages.ground_contact`` camera (K, R, centre C)."""
+    p = (camera.K @ (camera.R @ (np.asarray(points, float) - camera.C).T)).T
+    return p[:, :2] / p[:, 2:]
+
+
+def pole_scene(values=(0.5236, 0.0349, -0.1054), size=(320, 240), poles=8, seed=0):
+    """A grey picture of poles standing on flat ground 6 m below a camera of ``values`` (pitch and
+    roll in radians, log focal length in image heights: 30 degrees, 2 degrees, 0.9 by default),
+    the poles' image segments (foot to top) and the camera: straight lines to read a camera from."""
+    import math
+
+    from stages.ground_contact import camera_from_angles
+
+    width, height = size
+    camera = camera_from_angles(width, height, 6.0, values[0], values[1], math.exp(values[2]) * height)
+    rng = np.random.default_rng(seed)
+    image = np.full((height, width), 90, np.uint8)
+    segments = []
+    for _ in range(poles):
+        x, y = rng.uniform(-6, 6), rng.uniform(9, 20)
+        foot, top = project(camera, [[x, y, 0.0], [x, y, 4.0]])
+        cv2.line(image, tuple(np.round(foot).astype(int)), tuple(np.round(top).astype(int)), 220, 5)
+        segments.append([*foot, *top])
+    return image, np.array(segments), camera
+
+
+def write_pole_video(path: Path, frames: int = 30, fps: float = 10.0) -> Path:
+    """The pole scene (``pole_scene``, 320x240) with a dark box walking across: a video whose
+    camera can be read from its straight lines."""
+    poles = cv2.cvtColor(pole_scene()[0], cv2.COLOR_GRAY2BGR)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (320, 240))
+    assert writer.isOpened()
+    for i in range(frames):
+        image = poles.copy()
+        x = 20 + i * 240 // max(1, frames - 1)
+        cv2.rectangle(image, (x, 150), (x + 14, 200), (20, 20, 20), -1)
+        writer.write(image)
+    writer.release()
+    return path
+
+
 def write_truncated_avi(path: Path, frames: int = 40) -> Path:
     """An MJPEG AVI whose second half is cut off: its header promises ``frames`` frames."""
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
@@ -220,10 +262,11 @@ def make_tiny_contact_model(path: Path, offsets: np.ndarray, camera: np.ndarray,
 
 
 def mjpeg_server(frames_per_connection: list[int], fps: float | None = None,
-                 sizes_per_connection: list[tuple[int, int]] = ((64, 48),)):
+                 sizes_per_connection: list[tuple[int, int]] = ((64, 48),), picture: np.ndarray | None = None):
     """An IP-camera-like MJPEG stream that drops the k-th connection after
     ``frames_per_connection[k]`` frames of ``sizes_per_connection[k]`` (width, height) pixels
-    (the last entry of each repeats), sent as fast as the socket takes them or paced at ``fps``.
+    (the last entry of each repeats), sent as fast as the socket takes them or paced at ``fps``;
+    flat frames whose grey changes every frame, or ``picture`` (BGR) at that size.
     Returns (server, connections).
     """
     connections = []
@@ -240,7 +283,9 @@ def mjpeg_server(frames_per_connection: list[int], fps: float | None = None,
             self.send_header("Content-Type", "multipart/x-mixed-replace;boundary=frame")
             self.end_headers()
             for i in range(count):
-                jpg = cv2.imencode(".jpg", np.full((height, width, 3), i * 8 % 255, np.uint8))[1].tobytes()
+                image = (np.full((height, width, 3), i * 8 % 255, np.uint8) if picture is None
+                         else cv2.resize(picture, (width, height)))
+                jpg = cv2.imencode(".jpg", image)[1].tobytes()
                 try:
                     self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n"
                                      % len(jpg) + jpg + b"\r\n")

@@ -50,9 +50,8 @@ def test_a_run_told_only_the_camera_height_knows_no_pose_and_fuses_no_geometry()
         camera_info(_sequence(), Config(), "lens")
 
 
-def _grey_sequence(count: int):
-    """Plain grey frames: no lines to read, the heads alone."""
-    frames = [SimpleNamespace(rgb=np.full((240, 320, 3), 120, np.uint8))] * count
+def _sequence_of(picture: np.ndarray, count: int):
+    frames = [SimpleNamespace(rgb=picture)] * count
 
     class Sized(SimpleNamespace):
         def __len__(self):
@@ -64,7 +63,7 @@ def _grey_sequence(count: int):
 def test_told_the_height_and_the_scene_the_run_has_a_self_calibrated_pose():
     """``eval-tracks --camera scene``: the pose ``calibrate --camera-height`` reads from the frames
     (here plain grey ones: the heads alone), with the true height, taken as self-calibrated."""
-    sequence = _grey_sequence(4)
+    sequence = _sequence_of(np.full((240, 320, 3), 120, np.uint8), 4)   # grey: the heads alone
     posed = camera_info(sequence, Config(), "scene")
     assert posed.source == "self" and posed.R is not None and posed.height_m == pytest.approx(5.0)
     chain = build_eval_chain(sequence, Config(), "oracle", geometry=True, known="scene", camera=posed)
@@ -72,12 +71,20 @@ def test_told_the_height_and_the_scene_the_run_has_a_self_calibrated_pose():
 
 
 def test_told_only_the_height_the_run_reads_its_camera_from_its_first_frames_as_heightpipe_run_does():
-    """``--camera height`` by default: the pose from the frames a run reads ahead, then the model a
-    posed run picks (v1 and its moving objects) with the geometry channel."""
-    sequence = _grey_sequence(12)
+    """``--camera height`` by default: the pose from the frames a run reads ahead, when the scene's
+    lines agree, then the model a posed run picks (v1 and its moving objects) with the geometry
+    channel; without lines, v2 and its heads as before."""
+    import cv2
+
+    from media import pole_scene
+
+    sequence = _sequence_of(cv2.cvtColor(pole_scene()[0], cv2.COLOR_GRAY2RGB), 30)   # lines to read
     config, camera = run_setup(sequence, Config(), "height")
     assert camera.source == "self" and camera.R is not None and camera.height_m == pytest.approx(5.0)
     assert config.camera.self_calibrated and config.camera.pitch_deg > 0
     assert (config.height.model, config.objects.source) == ("", "blobs")
     chain = build_eval_chain(sequence, Config(), "model", geometry=True, known="height")
     assert "geometry" in [name for name, _ in chain.stages]
+    grey = _sequence_of(np.full((240, 320, 3), 120, np.uint8), 30)    # no lines: the heads in the run
+    config, camera = run_setup(grey, Config(), "height")
+    assert camera.source == "camera-height" and config.height.model == "v2"

@@ -215,7 +215,10 @@ def test_a_live_stream_told_only_the_height_reads_its_camera_from_its_first_seco
     """A stream's frames cannot be read twice: its first ``read_scene_live_s`` seconds read the
     camera and the run starts after them, posed; with 0 v2's heads guess the camera in the run,
     and the summary points to `heightpipe calibrate --camera-height` for a better one."""
-    server, _ = mjpeg_server([75], fps=25)
+    from media import pole_scene
+
+    poles = cv2.cvtColor(pole_scene()[0], cv2.COLOR_GRAY2BGR)
+    server, _ = mjpeg_server([75], fps=25, sizes_per_connection=[(320, 240)], picture=poles)
     try:
         url = f"http://127.0.0.1:{server.server_address[1]}/video.mjpg"
         result = heightpipe("run", url, "--out", tmp_path / "cam", "--no-progress", "--rerun", "off",
@@ -368,18 +371,33 @@ def test_a_v2_model_with_the_camera_height_says_the_heads_gave_the_rest(tmp_path
     assert "camera heads: pitch 22.9° ±7.8°" in camera_line and "mean of 5 frames" in camera_line
 
 
-def test_told_only_the_height_a_file_run_reads_its_camera_first_and_runs_posed(tmp_path, box_video, contact_model):
-    """The camera the heads read from the early frames poses the run: the model named decodes
-    with that pose (the self-calibrated [camera] pose), not with the heads frame by frame."""
-    result = heightpipe("run", box_video, "--out", tmp_path / "v2", "--no-progress", "--rerun", "off",
+@pytest.fixture
+def pole_video(tmp_path):
+    from media import write_pole_video
+
+    return write_pole_video(tmp_path / "poles.mp4")
+
+
+def test_told_only_the_height_a_file_run_reads_its_camera_first_and_runs_posed(tmp_path, pole_video, box_video,
+                                                                             contact_model):
+    """The camera the heads and the scene's lines read from the early frames poses the run: the
+    model named decodes with that pose (the self-calibrated [camera] pose), not with the heads
+    frame by frame. A video without straight lines keeps the heads."""
+    result = heightpipe("run", pole_video, "--out", tmp_path / "v2", "--no-progress", "--rerun", "off",
                         "--camera-height", "5", "--max-frames", "5", "--set", f'height.model="{contact_model}"')
     assert result.returncode == 0, result.stderr
     lines = result.stderr.splitlines()
     read = next(line for line in lines if line.startswith("  camera read from"))
-    assert "30 early frames: height 5.00 m given" in read and "pitch 22.9° ±" in read
+    assert "30 early frames: height 5.00 m given" in read and "straight lines of the scene" in read
+    pitch = re.search(r"pitch (\d+\.\d)° ±", read).group(1)
     camera_line = next(line for line in lines if line.startswith("  camera:"))
     assert camera_line.startswith("  camera: self-calibrated") and "self-calibrated [camera] pose" in camera_line
-    assert "pitch 22.9°" in camera_line and "heads" not in camera_line
+    assert f"pitch {pitch}°" in camera_line and "heads" not in camera_line
+    result = heightpipe("run", box_video, "--out", tmp_path / "box", "--no-progress", "--rerun", "off",
+                        "--camera-height", "5", "--max-frames", "5", "--set", f'height.model="{contact_model}"')
+    assert result.returncode == 0, result.stderr
+    assert not any(line.startswith("  camera read from") for line in result.stderr.splitlines())
+    assert "camera heads: pitch 22.9°" in result.stderr
 
 
 @pytest.mark.parametrize("flags, v2, read", [
@@ -389,8 +407,8 @@ def test_told_only_the_height_a_file_run_reads_its_camera_first_and_runs_posed(t
     (["--camera-height", "5", "--set", 'height.model="v1"'], False, True),            # named: read, then as named
     (["--camera-height", "5", "--set", 'height.model="v1"', "--set", "camera.read_scene_frames=0"], False, False),
 ])
-def test_the_default_model_follows_what_the_run_is_told_of_its_camera(tmp_path, box_video, flags, v2, read):
-    result = heightpipe("run", box_video, "--out", tmp_path / "run", "--no-progress", "--rerun", "off",
+def test_the_default_model_follows_what_the_run_is_told_of_its_camera(tmp_path, pole_video, flags, v2, read):
+    result = heightpipe("run", pole_video, "--out", tmp_path / "run", "--no-progress", "--rerun", "off",
                         "--max-frames", "3", *flags)
     assert result.returncode == 0, result.stderr
     camera_line = next(line for line in result.stderr.splitlines() if line.startswith("  camera:"))

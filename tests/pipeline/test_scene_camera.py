@@ -40,39 +40,59 @@ def _contact_model(tmp_path, pitch_rad: float):
     from stages.heightnet_model import HeightNetModel
 
     offsets = np.zeros((48, 64, 2), np.float32)
-    path = make_tiny_contact_model(tmp_path / "v2.onnx", offsets, [pitch_rad, 0.02, 0.2, -4.0, -4.0, -4.0])
+    path = make_tiny_contact_model(tmp_path / "v2.onnx", offsets, [pitch_rad, 0.02, np.log(0.9), -4.0, -4.0, -4.0])
     return HeightNetModel(str(path), 1)
 
 
-FRAMES = [np.full((240, 320, 3), 100, np.uint8)] * 6
+def _pole_frames(count: int = 15) -> list[np.ndarray]:
+    """Frames of poles (30 degrees of pitch, 2 of roll): lines the heads' 22.9 degrees give way to."""
+    import cv2
+
+    from media import pole_scene
+
+    return [cv2.cvtColor(pole_scene()[0], cv2.COLOR_GRAY2BGR)] * count
+
+
+GREY = [np.full((240, 320, 3), 100, np.uint8)] * 15
 
 
 def test_the_camera_read_poses_the_config_as_a_self_calibrated_camera(tmp_path):
     model = _contact_model(tmp_path, 0.4)
     told = _config(height_m=6.0)
-    posed, used = pose_from_scene(told, FRAMES, model)
-    assert used is not None and used.frames == len(FRAMES) and used.height_m == pytest.approx(6.0)
+    posed, used = pose_from_scene(told, _pole_frames(), model)
+    assert used is not None and used.frames == 15 and used.height_m == pytest.approx(6.0) and used.edges >= 8
+    assert 26.0 < used.pitch_deg < 31.0 and 1.0 < used.roll_deg < 3.0     # the lines', not the heads' 22.9
     camera = posed.camera
     assert camera.self_calibrated and camera.height_m == 6.0 and camera.calibration == ""
-    assert camera.pitch_deg == pytest.approx(np.degrees(0.4), abs=0.01)
     assert camera.pitch_deg == pytest.approx(used.pitch_deg, abs=0.005)
     assert camera.roll_deg == pytest.approx(used.roll_deg, abs=0.005)
-    assert camera.fov_deg != told.camera.fov_deg           # the heads' focal length, not the default lens
+    assert camera.fov_deg != told.camera.fov_deg           # the read focal length, not the default lens
+    assert (camera.pitch_std_deg, camera.roll_std_deg, camera.focal_std_pct) == pytest.approx(
+        (used.pitch_std_deg, used.roll_std_deg, used.focal_std_pct), abs=0.05)
     assert (posed.height, posed.objects) == (told.height, told.objects)   # the model is the caller's to pick
+
+
+def test_without_lines_a_run_is_not_posed_by_the_heads_alone_but_calibrate_s_snippet_is(tmp_path):
+    """The heads alone are what v2 guesses frame by frame anyway (and its offsets err with them)."""
+    model = _contact_model(tmp_path, 0.4)
+    told = _config(height_m=6.0)
+    assert pose_from_scene(told, GREY, model) == (told, None)
+    posed, used = pose_from_scene(told, GREY, model, needs_lines=False)
+    assert used.edges == 0 and posed.camera.pitch_deg == pytest.approx(np.degrees(0.4), abs=0.01)
 
 
 @pytest.mark.parametrize("pitch_rad", [0.0, -0.1])
 def test_a_camera_read_as_level_or_looking_up_leaves_the_run_unposed(tmp_path, pitch_rad):
     """[camera] cannot say "level" (pitch 0 is "unknown"): such a camera keeps the heads in the run."""
     told = _config(height_m=6.0)
-    assert pose_from_scene(told, FRAMES, _contact_model(tmp_path, pitch_rad)) == (told, None)
+    assert pose_from_scene(told, GREY, _contact_model(tmp_path, pitch_rad), needs_lines=False) == (told, None)
 
 
 def test_nothing_to_read_or_nothing_to_read_it_for_leaves_the_config_as_it_is(tmp_path):
     model = _contact_model(tmp_path, 0.4)
     told, posed = _config(height_m=6.0), _config(height_m=6.0, pitch_deg=20.0)
-    assert pose_from_scene(told, [], model) == (told, None)         # a live stream: no frames read ahead
-    assert pose_from_scene(posed, FRAMES, model) == (posed, None)   # a pose given: nothing to read
+    assert pose_from_scene(told, [], model) == (told, None)                # a stream that sent nothing
+    assert pose_from_scene(posed, _pole_frames(), model) == (posed, None)  # a pose given: nothing to read
 
 
 def _stream(fps: float, seconds: float):

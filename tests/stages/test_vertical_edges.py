@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from core.packets import CameraInfo
+from media import pole_scene as media_pole_scene
+from media import project
 from stages.contact_heights import ContactHeights
 from stages.ground_contact import camera_from_angles
 from stages.heightnet_model import ModelOutput
@@ -20,24 +22,11 @@ HEADS_STD = np.array([math.radians(6.0), math.radians(1.1), 0.3])
 CORRELATION = np.array([[1.0, 0.0, -0.8], [0.0, 1.0, 0.0], [-0.8, 0.0, 1.0]])
 
 
-def project(camera, points):
-    p = (camera.K @ (camera.R @ (np.asarray(points, float) - camera.C).T)).T
-    return p[:, :2] / p[:, 2:]
-
-
 def pole_scene(values=TRUE, poles=8, seed=0):
     """A grey picture of poles standing on flat ground, 6 m below a camera of ``values``, and the
-    poles' image segments (foot to top)."""
-    camera = camera_from_angles(W, H, 6.0, values[0], values[1], math.exp(values[2]) * H)
-    rng = np.random.default_rng(seed)
-    image = np.full((H, W), 90, np.uint8)
-    segments = []
-    for _ in range(poles):
-        x, y = rng.uniform(-6, 6), rng.uniform(9, 20)
-        foot, top = project(camera, [[x, y, 0.0], [x, y, 4.0]])
-        cv2.line(image, tuple(np.round(foot).astype(int)), tuple(np.round(top).astype(int)), 220, 5)
-        segments.append([*foot, *top])
-    return image, np.array(segments)
+    poles' image segments (foot to top) (``media.pole_scene``)."""
+    image, segments, _ = media_pole_scene(values, (W, H), poles, seed)
+    return image, segments
 
 
 @pytest.mark.parametrize("pitch_deg, focal", [(30.0, 200.0), (45.0, 300.0), (15.0, 150.0)])
