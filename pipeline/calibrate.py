@@ -39,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-height", type=float, metavar="M",
                         help="the camera's mounting height: pitch, roll and focal length then come from the "
                              "network's camera heads and the scene's straight lines, not from people")
+    parser.add_argument("--picture", metavar="IMAGE",
+                        help="with --camera-height: also draw the camera read (the lines that agreed, the horizon, "
+                             "1.70 m bars on the ground) on the scene, to check it by eye")
     parser.add_argument("--fov", type=float, metavar="DEG",
                         help="horizontal field of view, when there is no calibration (default: camera.fov_deg)")
     parser.add_argument("--prior-mean", type=float, default=1.70, metavar="M",
@@ -67,6 +70,8 @@ def main(args: argparse.Namespace, config) -> int:
     check_capture_limits(config)
     if args.camera_height is not None:
         return scene_camera(args, config)
+    if args.picture:
+        raise ConfigError("--picture draws the camera read from the scene: give --camera-height too")
     if not (0.5 < args.prior_mean < 2.5 and 0.0 < args.prior_std < 0.5):
         raise ConfigError("--prior-mean must be in metres (0.5-2.5) and --prior-std in (0, 0.5)")
 
@@ -122,7 +127,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     from core.errors import ConfigError, HeightpipeError
     from stages.calibration import camera_for_run, fov_from_focal
     from stages.capture import open_source
-    from stages.contact_heights import read_scene_camera
+    from stages.contact_heights import read_scene
     from stages.heightnet_model import HeightNetModel
     from stages.self_calibration import toml_string
     from stages.vertical_edges import FIRST_FIT_SAMPLES, SAMPLE_EVERY
@@ -155,7 +160,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
 
     used = None
     try:
-        used = read_scene_camera(model, images(), camera)
+        used, reader = read_scene(model, images(), camera)
     except KeyboardInterrupt:
         print("heightpipe: interrupted before the camera was read", file=sys.stderr)
         return 130
@@ -164,6 +169,8 @@ def scene_camera(args: argparse.Namespace, config) -> int:
         source.close()
     if used is None:
         raise HeightpipeError(f"{args.source}: no frames to read the camera from")
+    if args.picture:   # before the snippet: a picture that cannot be written leaves no half output
+        write_scene_picture(args.picture, reader, used, width)
     fov = fov_from_focal(width, used.focal_px)
     first_fit = SAMPLE_EVERY * (FIRST_FIT_SAMPLES - 1) + 1
     lines_note = (f"{used.edges} straight lines of the scene" if used.edges else
@@ -186,6 +193,23 @@ def scene_camera(args: argparse.Namespace, config) -> int:
           f"roll {used.roll_deg:.1f} +- {used.roll_std_deg:.1f} deg, focal {used.focal_px:.0f} px ({lines_note}); "
           f"run with it: heightpipe run {args.source} --config THIS_FILE", file=sys.stderr)
     return 0
+
+
+def write_scene_picture(path: str, reader, used, frame_width: int) -> None:
+    """``--picture``: the camera read, drawn on the scene it was read from (``stages/scene_picture.py``)."""
+    import cv2
+
+    from core.errors import HeightpipeError
+    from stages.scene_picture import scene_camera_picture
+
+    picture = scene_camera_picture(reader.samples.median(), used, frame_width, reader.edge_fit)
+    try:
+        written = cv2.imwrite(path, picture)
+    except cv2.error:
+        written = False
+    if not written:
+        raise HeightpipeError(f"cannot write the picture {path} (a .jpg or .png in a folder that exists)")
+    print(f"heightpipe: wrote {path}", file=sys.stderr)
 
 
 def write_calibration_json(path: str, result, calibration: str) -> None:

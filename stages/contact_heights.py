@@ -149,12 +149,18 @@ def read_scene_camera(model, images, camera: CameraInfo) -> HeightCamera | None:
     """The camera a run told only ``camera.height_m`` ends with over ``images`` (BGR frames):
     ``model``'s (a v2 ``HeightNetModel``) camera heads sharpened by the scene's straight lines.
     None without images. What ``heightpipe calibrate --camera-height`` prints as a pose."""
+    return read_scene(model, images, camera)[0]
+
+
+def read_scene(model, images, camera: CameraInfo) -> tuple[HeightCamera | None, ContactHeights]:
+    """``read_scene_camera``'s camera and the reader that read it: its ``samples`` (the scene's
+    median) and ``edge_fit`` (the lines that agreed) are what a picture of the reading shows."""
     contact = ContactHeights(spread_scale=model.info.camera_spread_scale,
                              error_correlation=model.info.camera_error_correlation, vertical_edges=True)
     used = None
     for image in images:
         used = contact.heads_camera(model.run(image), camera, image)
-    return used
+    return used, contact
 
 
 def _given(camera: CameraInfo, source: str) -> HeightCamera:

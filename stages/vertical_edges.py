@@ -39,7 +39,7 @@ read_scene_camera``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -87,11 +87,14 @@ before the inliers' own scatter is measured."""
 @dataclass(frozen=True)
 class EdgeFit:
     """The camera the heads and the edges agree on: pitch, roll (radians), log focal length in
-    image heights, their standard deviations, and how many segments agreed."""
+    image heights, their standard deviations, and how many segments agreed; the agreeing
+    segments themselves (vertical ones, and each family of ground lines), to be drawn."""
 
     values: np.ndarray
     std: np.ndarray
     edges: int
+    vertical: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    families: tuple[np.ndarray, ...] = ()
 
 
 def vanishing_point(values: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -269,7 +272,10 @@ def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, s
     scatter = max(1.0, float(np.sqrt(np.sum(rows[inliers] ** 2) / max(count - 2 - len(families), 1))))
     jacobian = np.vstack([solution.jac[:-3][inliers] / scatter, solution.jac[-3:]])
     posterior = np.linalg.pinv(jacobian.T @ jacobian)[:3, :3]
-    return EdgeFit(solution.x[:3], np.sqrt(np.diag(posterior)), count)
+    groups = [used, *(f.segments for f in families)]     # their rows come in this order
+    ends = np.cumsum([len(group) for group in groups])
+    agreeing = [group[inliers[end - len(group):end]] for group, end in zip(groups, ends)]
+    return EdgeFit(solution.x[:3], np.sqrt(np.diag(posterior)), count, agreeing[0], tuple(agreeing[1:]))
 
 
 def _least_squares(prior: np.ndarray, whiten: np.ndarray, segments: np.ndarray, families: list[Family], width: int,
@@ -332,12 +338,16 @@ class FrameSamples:
         self._next_fit = self.frames + min(self.frames, REFIT_MAX_FRAMES)
         return True
 
+    def median(self) -> np.ndarray:
+        """The samples' median (grey, at most ``WORK_WIDTH`` wide): the scene without what moves."""
+        if any(g.shape != self._grey[-1].shape for g in self._grey):
+            self._grey, self._ground = self._grey[-1:], self._ground[-1:]  # the frame size changed
+        return np.median(np.stack(self._grey), axis=0).astype(np.uint8)
+
     def segments(self) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
         """Segments of the samples' median off and on the ground (``scene_segments``) and that
         image's (width, height)."""
-        if any(g.shape != self._grey[-1].shape for g in self._grey):
-            self._grey, self._ground = self._grey[-1:], self._ground[-1:]  # the frame size changed
-        background = np.median(np.stack(self._grey), axis=0).astype(np.uint8)
+        background = self.median()
         masks = [g for g in self._ground if g is not None and g.shape == background.shape]
         ground = np.mean(masks, axis=0) > 0.5 if masks else None
         return (*scene_segments(background, ground), (background.shape[1], background.shape[0]))

@@ -81,10 +81,30 @@ def test_told_the_height_calibrate_reads_a_live_stream_too(capsys):
     assert "camera from 15 frames" in printed.err
 
 
+def test_told_the_height_calibrate_draws_the_camera_it_read(tmp_path, capsys):
+    """`--picture`: the scene's median with the lines that agreed, the horizon and 1.70 m bars."""
+    import cv2
+
+    from media import write_pole_video
+    from pipeline.cli import main
+
+    video = write_pole_video(tmp_path / "poles.mp4")
+    picture = tmp_path / "camera.png"
+    assert main(["calibrate", str(video), "--camera-height", "6", "--picture", str(picture), "--no-progress"]) == 0
+    assert f"wrote {picture}" in capsys.readouterr().err
+    image = cv2.imread(str(picture))
+    assert image.shape == (240, 320, 3)
+    green = (image[..., 1] > 180) & (image[..., 0] < 120) & (image[..., 2] < 120)
+    white = np.all(image > 235, axis=2)
+    assert green.sum() > 100 and white.sum() > 100        # the poles that agreed, the bars
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--camera-height", "0"], "--camera-height must be the mounting height in metres"),
     (["--camera-height", "5", "--set", 'height.model="v1"'], "needs a HeightNet v2 model"),
     (["--camera-height", "5", "--out", "camera.json"], "save the [camera] snippet instead"),
+    (["--picture", "camera.png"], "--picture draws the camera read from the scene: give --camera-height too"),
+    (["--camera-height", "5", "--picture", "/no/such/folder/camera.png"], "cannot write the picture"),
 ])
 def test_calibrate_from_the_scene_refuses_in_one_line(box_video, capsys, flags, message):
     from pipeline.cli import main
