@@ -34,9 +34,12 @@ class RunOutputs:
     csv: Path | None
     objects: Path | None = None
     events: Path | None = None
+    camera_picture: Path | None = None
+    """PREFIX.camera.jpg: the camera read from the first frames, drawn on the scene (told only the height)."""
 
     def existing(self) -> list[Path]:
-        return [p for p in (self.rrd, self.mcap, self.csv, self.objects, self.events) if p is not None]
+        return [p for p in (self.rrd, self.mcap, self.csv, self.objects, self.events, self.camera_picture)
+                if p is not None]
 
 
 @dataclass
@@ -224,18 +227,26 @@ def _scene_images(told: Config, source: FrameSource, frames: Iterator, backgroun
     return background if same else source.background_sample(count, span)
 
 
+def _write_picture(path: Path, picture) -> Path | None:
+    """PREFIX.camera.jpg: the camera read from the scene, drawn on it (None if it cannot be written:
+    the run does not stop for a picture)."""
+    import cv2
+
+    return path if cv2.imwrite(str(path), picture, [cv2.IMWRITE_JPEG_QUALITY, 85]) else None
+
+
 def _posed_from_scene(told: Config, config: Config, model, images: list):
     """Told only the camera height (``told``), the camera read from ``images``
     (``pipeline/scene_camera.py``): the posed run's config, its model (the one loaded is kept if
-    the posed config names the same) and the camera read; ``config`` and ``model`` as they were
+    the posed config names the same) and the reading; ``config`` and ``model`` as they were
     when there are no images or the camera read cannot pose the run."""
-    posed, used = pose_from_scene(told, images, model)
-    if used is None:
+    posed, reading = pose_from_scene(told, images, model)
+    if reading is None:
         return config, model, None
     posed = model_for_camera(posed)
     if posed.height != config.height or posed.objects != config.objects:
         model = load_height_model(posed)
-    return posed, model, used
+    return posed, model, reading
 
 
 def run_pipeline(source_spec: str, config: Config, prefix: Path,
@@ -264,11 +275,15 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         frames = source.frames()
         background = source.background_sample(config.objects.background_prime_frames,
                                                config.objects.background_prime_s)
+        reading = None
         if reads_scene(told):
             images = _scene_images(told, source, frames, background)
-            config, model, summary.scene_camera = _posed_from_scene(told, config, model, images)
+            config, model, reading = _posed_from_scene(told, config, model, images)
         outputs = output_paths(prefix, config)
         summary.outputs = outputs
+        if reading is not None:
+            summary.scene_camera = reading.camera
+            outputs.camera_picture = _write_picture(prefix.with_name(prefix.name + ".camera.jpg"), reading.picture)
         camera = build_camera(config, width, height)
         summary.camera_source = camera.source
         chain = build_stage_chain(config, camera, model=model)

@@ -18,7 +18,7 @@ poses a run (``pose_from_scene``).
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Iterator
 
 import numpy as np
@@ -42,10 +42,19 @@ def reads_scene(config: Config) -> bool:
     return config.camera.read_scene_frames > 0 and told_height_only(config.camera)
 
 
+@dataclass
+class SceneReading:
+    """The camera read from a scene, and the picture of the reading (``stages/scene_picture.py``:
+    the lines that agreed, the horizon, 1.70 m bars), which a run writes beside its outputs."""
+
+    camera: HeightCamera
+    picture: np.ndarray
+
+
 def pose_from_scene(config: Config, images: list[np.ndarray], model=None,
-                    needs_lines: bool = True) -> tuple[Config, HeightCamera | None]:
+                    needs_lines: bool = True) -> tuple[Config, SceneReading | None]:
     """``config`` with ``[camera]`` posed by the camera read from ``images`` (BGR frames at the
-    run's size), and that camera; ``config`` unchanged and None when it is not told only the
+    run's size), and that reading; ``config`` unchanged and None when it is not told only the
     camera height, there are no images, the camera read is level or looking up, or (with
     ``needs_lines``) no straight lines of the scene agreed with the heads.
 
@@ -58,22 +67,24 @@ def pose_from_scene(config: Config, images: list[np.ndarray], model=None,
     ``model``: a loaded v2 ``HeightNetModel`` to read with (one is loaded when it is None or a v1).
     """
     from stages.calibration import camera_for_run, fov_from_focal
-    from stages.contact_heights import read_scene_camera
+    from stages.contact_heights import read_scene
     from stages.heightnet_model import HeightNetModel
+    from stages.scene_picture import scene_camera_picture
 
     if not images or not told_height_only(config.camera):
         return config, None
     if model is None or not model.info.contact:
         model = HeightNetModel(HEIGHT_ONLY_MODEL, config.height.threads)
     height, width = images[0].shape[:2]
-    used = read_scene_camera(model, images, camera_for_run(config.camera, width, height))
+    used, reader = read_scene(model, images, camera_for_run(config.camera, width, height))
     if used is None or not MIN_PITCH_DEG <= used.pitch_deg < 90.0 or (needs_lines and not used.edges):
         return config, None
     posed = replace(config.camera, pitch_deg=round(used.pitch_deg, 2), roll_deg=round(used.roll_deg, 2),
                     fov_deg=round(fov_from_focal(width, used.focal_px), 2), self_calibrated=True,
                     pitch_std_deg=round(used.pitch_std_deg, 2), roll_std_deg=round(used.roll_std_deg, 2),
                     focal_std_pct=round(used.focal_std_pct, 1))
-    return replace(config, camera=posed), used
+    picture = scene_camera_picture(reader.samples.median(), used, width, reader.edge_fit)
+    return replace(config, camera=posed), SceneReading(used, picture)
 
 
 def opening_images(frames: Iterator, count: int, span_s: float) -> tuple[list[np.ndarray], int]:

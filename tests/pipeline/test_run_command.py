@@ -393,11 +393,13 @@ def test_told_only_the_height_a_file_run_reads_its_camera_first_and_runs_posed(t
     camera_line = next(line for line in lines if line.startswith("  camera:"))
     assert camera_line.startswith("  camera: self-calibrated") and "self-calibrated [camera] pose" in camera_line
     assert f"pitch {pitch}°" in camera_line and "heads" not in camera_line
+    picture = cv2.imread(str(tmp_path / "v2.camera.jpg"))     # the reading, drawn on the scene
+    assert picture is not None and picture.shape == (240, 320, 3) and "v2.camera.jpg" in result.stderr
     result = heightpipe("run", box_video, "--out", tmp_path / "box", "--no-progress", "--rerun", "off",
                         "--camera-height", "5", "--max-frames", "5", "--set", f'height.model="{contact_model}"')
     assert result.returncode == 0, result.stderr
     assert not any(line.startswith("  camera read from") for line in result.stderr.splitlines())
-    assert "camera heads: pitch 22.9°" in result.stderr
+    assert "camera heads: pitch 22.9°" in result.stderr and not (tmp_path / "box.camera.jpg").exists()
 
 
 @pytest.mark.parametrize("flags, v2, read", [

@@ -59,7 +59,9 @@ GREY = [np.full((240, 320, 3), 100, np.uint8)] * 15
 def test_the_camera_read_poses_the_config_as_a_self_calibrated_camera(tmp_path):
     model = _contact_model(tmp_path, 0.4)
     told = _config(height_m=6.0)
-    posed, used = pose_from_scene(told, _pole_frames(), model)
+    posed, reading = pose_from_scene(told, _pole_frames(), model)
+    used = reading.camera
+    assert reading.picture.shape == (240, 320, 3)
     assert used is not None and used.frames == 15 and used.height_m == pytest.approx(6.0) and used.edges >= 8
     assert 26.0 < used.pitch_deg < 31.0 and 1.0 < used.roll_deg < 3.0     # the lines', not the heads' 22.9
     camera = posed.camera
@@ -77,8 +79,8 @@ def test_without_lines_a_run_is_not_posed_by_the_heads_alone_but_calibrate_s_sni
     model = _contact_model(tmp_path, 0.4)
     told = _config(height_m=6.0)
     assert pose_from_scene(told, GREY, model) == (told, None)
-    posed, used = pose_from_scene(told, GREY, model, needs_lines=False)
-    assert used.edges == 0 and posed.camera.pitch_deg == pytest.approx(np.degrees(0.4), abs=0.01)
+    posed, reading = pose_from_scene(told, GREY, model, needs_lines=False)
+    assert reading.camera.edges == 0 and posed.camera.pitch_deg == pytest.approx(np.degrees(0.4), abs=0.01)
 
 
 @pytest.mark.parametrize("pitch_rad", [0.0, -0.1])
