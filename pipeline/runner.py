@@ -150,10 +150,13 @@ def import_sinks(config: Config) -> None:
 
 
 def build_sinks(outputs: RunOutputs, config: Config, recording_name: str,
-                objects: ObjectTable | None = None, live: bool = False) -> list[tuple[str, Sink]]:
+                objects: ObjectTable | None = None, live: bool = False,
+                scene=None) -> list[tuple[str, Sink]]:
     """The sinks of this run; if one cannot be opened, those already open are closed first.
 
     ``live``: the source is a stream that may not end (the .rrd then has no index by default).
+    ``scene``: the camera read from the first frames (``pipeline.scene_camera.SceneReading``),
+    shown in the rerun view beside the camera's state.
     """
     from stages.sink_common import FrameEncoder
 
@@ -165,7 +168,9 @@ def build_sinks(outputs: RunOutputs, config: Config, recording_name: str,
 
             web_url = web_grpc_url(config.web.bind, config.web.grpc_port) if config.output.rerun == "web" else None
             sinks.append(("rerun", RerunSink(outputs.rrd, config.output.rerun, config.output, recording_name,
-                                             encoder=encoder, web_url=web_url, live=live)))
+                                             encoder=encoder, web_url=web_url, live=live,
+                                             scene_camera=scene.camera if scene is not None else None,
+                                             scene_picture=scene.picture if scene is not None else None)))
         if outputs.mcap is not None:
             from stages.mcap_sink import McapSink
 
@@ -289,7 +294,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         chain = build_stage_chain(config, camera, model=model)
         chain.prime(background)
         sinks = build_sinks(outputs, config, prefix.name, summary.objects,
-                            live=isinstance(source, StreamSource))
+                            live=isinstance(source, StreamSource), scene=reading)
     except BaseException:
         source.close()
         raise

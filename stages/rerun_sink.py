@@ -30,6 +30,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
@@ -39,7 +40,7 @@ from core.errors import ConfigError, HeightpipeError
 from core.packets import OBJECT_CLASSES, FramePacket, HeightCamera, Track
 from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC, OBJECT_MATCH_RGB,
                                 FrameEncoder, camera_state_text, check_output_config, class_id,
-                                confirmed, damage_text, height_text, quality_rgb, track_label)
+                                confirmed, damage_text, estimate_text, height_text, quality_rgb, track_label)
 
 APPLICATION_ID = "heightpipe"
 RERUN_MODES = ("save", "spawn", "web", "serve")
@@ -80,18 +81,20 @@ def web_grpc_url(bind: str, grpc_port: int) -> str:
     return f"rerun+http://{host}:{grpc_port}/proxy"
 
 
-def heightpipe_blueprint() -> rrb.Blueprint:
+def heightpipe_blueprint(scene_camera: bool = False) -> rrb.Blueprint:
+    """The view's layout; ``scene_camera``: with a panel for the camera read from the scene."""
+    right = [rrb.TimeSeriesView(name="Track height (m)", origin="/tracks"),
+             rrb.TextLogView(name="Height-rule events", origin="/events"),
+             rrb.TextDocumentView(name="Camera", origin="/status")]
+    if scene_camera:
+        right.append(rrb.Spatial2DView(name="Camera read from the scene (1.70 m bars)", origin="/scene_camera"))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
                 rrb.Spatial2DView(name="Frame: tracks, events, matches", origin="/camera"),
                 rrb.Spatial2DView(name="Height map (m)", origin="/height"),
                 row_shares=[3, 2]),
-            rrb.Vertical(
-                rrb.TimeSeriesView(name="Track height (m)", origin="/tracks"),
-                rrb.TextLogView(name="Height-rule events", origin="/events"),
-                rrb.TextDocumentView(name="Camera", origin="/status"),
-                row_shares=[5, 2, 1]),
+            rrb.Vertical(*right, row_shares=[5, 2, 1, 3][:len(right)]),
             column_shares=[3, 2]),
         collapse_panels=True)
 
@@ -105,9 +108,11 @@ class RerunFrameLogger:
 
     _PER_FRAME = ("/camera/ground", "/camera/matches", "/height")
 
-    def __init__(self, rec: rr.RecordingStream, ground_overlay: bool = True):
+    def __init__(self, rec: rr.RecordingStream, ground_overlay: bool = True, camera_note: str = ""):
         self.rec = rec
         self.ground_overlay = ground_overlay
+        self.camera_note = camera_note
+        """Said under the camera's state (the camera read from the scene, when one was)."""
         self._logged_now: set[str] = set()
         self._logged_before: set[str] = set()
         self._named_series: set[int] = set()
@@ -162,6 +167,8 @@ class RerunFrameLogger:
         (with a v2 network: the camera its heights were decoded with, and the camera heads'
         uncertainty where they supplied it)."""
         state = camera_state_text(source, height_camera, frames=False)
+        if self.camera_note:
+            state += f"\n\n{self.camera_note}"
         if state != self._camera_state:
             self._log("/status", rr.TextDocument(f"**Camera:** {state}", media_type="text/markdown"))
             self._camera_state = state
@@ -283,7 +290,8 @@ class RerunSink:
 
     def __init__(self, path: Path, mode: str, config: OutputConfig, recording_name: str,
                  encoder: FrameEncoder | None = None, web_url: str | None = None,
-                 live: bool = False):
+                 live: bool = False, scene_camera: HeightCamera | None = None,
+                 scene_picture: np.ndarray | None = None):
         if mode not in RERUN_MODES:
             raise ConfigError(f"output.rerun must be one of {', '.join(RERUN_MODES)} or off, "
                               f"got {mode!r}")
@@ -295,7 +303,7 @@ class RerunSink:
         self.encoder = encoder or FrameEncoder.from_config(config)
         self.rec = open_recording(recording_name)
         self.indexed = writes_index(config.rrd_index, live)
-        blueprint = heightpipe_blueprint()
+        blueprint = heightpipe_blueprint(scene_camera=scene_picture is not None)
         try:
             if mode == "save":
                 self.rec.save(self.path, default_blueprint=blueprint, write_footer=self.indexed)
@@ -318,7 +326,12 @@ class RerunSink:
                       file=sys.stderr)
         except (OSError, RuntimeError, ValueError) as exc:
             raise HeightpipeError(f"cannot start rerun output ({mode}): {exc}") from None
-        self.logger = RerunFrameLogger(self.rec, ground_overlay=config.ground_overlay)
+        note = (f"**Read from {scene_camera.frames} early frames** (camera height {scene_camera.height_m:.2f} m "
+                f"given): {estimate_text(scene_camera)}" if scene_camera is not None else "")
+        self.logger = RerunFrameLogger(self.rec, ground_overlay=config.ground_overlay, camera_note=note)
+        if scene_picture is not None:
+            jpeg = cv2.imencode(".jpg", scene_picture, [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
+            self.rec.log("/scene_camera", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"), static=True)
         self.flush_interval_s = config.flush_interval_s
         self._last_flush_s: float | None = None
         self._closed = False

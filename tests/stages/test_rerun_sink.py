@@ -120,6 +120,29 @@ def test_status_shows_the_camera_a_v2_network_decoded_with_and_changes_only_with
     assert "pitch 19.0°" in status[1][1]
 
 
+def test_a_camera_read_from_the_scene_is_shown_beside_the_camera_state(tmp_path):
+    """Told only the height, the run's view says what it read and shows the picture of it."""
+    from core.packets import HeightCamera
+
+    path = tmp_path / "read.rrd"
+    read = HeightCamera("heads", 7.84, 20.54, 1.31, 1379.0, pitch_std_deg=1.3, roll_std_deg=0.58,
+                        focal_std_pct=7.0, frames=30, edges=55)
+    picture = np.full((36, 64, 3), 200, np.uint8)
+    sink = RerunSink(path, "save", OutputConfig(), "read", scene_camera=read, scene_picture=picture)
+    packet = make_packet(0)
+    packet.camera.source = "self"
+    sink.write(packet)
+    sink.close()
+    rows = rrd_rows(path)
+    status = rows["/status"][0][1]["TextDocument:text"][0]
+    assert status.startswith("**Camera:** self-calibrated") and "Read from 30 early frames" in status
+    assert "55 straight lines of the scene: pitch 20.5° ±1.3°" in status
+    from rerun.chunk import RrdReader
+
+    static = {chunk.entity_path for chunk in RrdReader(path).stream() if chunk.is_static}
+    assert "/scene_camera" in static                     # the picture, for the whole recording
+
+
 def test_frame_encoder_encodes_once_and_converts_heights_to_mm():
     encoder = FrameEncoder(jpeg_quality=90, height_map_scale=2)
     packet = make_packet(0)
