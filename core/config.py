@@ -641,12 +641,13 @@ HEIGHT_ONLY_MODEL = "v2"
 """The shipped model a run told only its camera's height uses (``model_for_camera``)."""
 
 
-def told_height_only(camera: CameraConfig) -> bool:
-    """Whether ``[camera]`` gives the camera's height and nothing else of its pose or lens."""
-    return camera.height_m > 0 and camera.pitch_deg == 0.0 and not camera.calibration
+def told_height_only(camera: CameraConfig, file_has_pose: bool = True) -> bool:
+    """Whether ``[camera]`` gives the camera's height and nothing else of its pose: no pitch, and
+    no calibration file, or (``file_has_pose`` False) one with the lens alone."""
+    return camera.height_m > 0 and camera.pitch_deg == 0.0 and not (camera.calibration and file_has_pose)
 
 
-def model_for_camera(config: Config) -> Config:
+def model_for_camera(config: Config, file_has_pose: bool = True) -> Config:
     """The config a run uses: with ``height.model = ""`` and only the camera's height given (no
     calibration file, no pitch), HeightNet v2 with its detection head finding the objects
     (``objects.source = "network"``); otherwise ``config`` as it is.
@@ -658,8 +659,11 @@ def model_for_camera(config: Config) -> Config:
     named in the config (``v1``, ``v2``, a path) is used as named, with ``[objects]`` as given.
     A run told only the height is posed first (``pipeline/scene_camera.py``), so this case is
     left to ``[camera] read_scene_frames = 0`` and to scenes that could not pose the run.
+    ``file_has_pose``: whether ``[camera] calibration`` names a file with a pose (the caller
+    reads it: ``pipeline.scene_camera.knows_height_only``); one with the lens alone leaves the
+    height the only part of the pose known, v2's case.
     """
-    if config.height.model or not told_height_only(config.camera):
+    if config.height.model or not told_height_only(config.camera, file_has_pose):
         return config
     return dataclasses.replace(config, height=dataclasses.replace(config.height, model=HEIGHT_ONLY_MODEL),
                                objects=dataclasses.replace(config.objects, source="network"))

@@ -29,7 +29,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 from pipeline.batch_manifest import DONE, FAILED, INTERRUPTED
-from core.config import Config, model_for_camera
+from pipeline.scene_camera import model_for
+from core.config import Config
 
 if TYPE_CHECKING:
     from pipeline.batch_engines import TaskResult, VideoTask, WorkerStatus
@@ -416,7 +417,7 @@ def main(args: argparse.Namespace, config: Config) -> int:
 
     apply_flags(args, config)
     # Resolved before the fingerprints are made (run_pipeline would resolve it again, the same).
-    config = model_for_camera(config)
+    config = model_for(config)
     options = BatchOptions(
         out_dir=Path(args.out),
         engine=args.engine or config.batch.engine,

@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
-from core.config import Config, model_for_camera
+from core.config import Config
 from core.packets import CameraInfo, HeightCamera
 from core.stage import Sink
-from pipeline.scene_camera import opening_images, pose_from_scene, reads_scene
+from pipeline.scene_camera import model_for, opening_images, pose_from_scene, reads_scene
 from pipeline.stage_chain import build_stage_chain, close_all, import_stages, load_height_model
 from stages.capture import CaptureStats, FrameSource, StreamSource, open_source
 from stages.objects_table import ObjectTable
@@ -248,7 +248,7 @@ def _posed_from_scene(told: Config, config: Config, model, images: list):
     posed, reading = pose_from_scene(told, images, model)
     if reading is None:
         return config, model, None
-    posed = model_for_camera(posed)
+    posed = model_for(posed)
     if posed.height != config.height or posed.objects != config.objects:
         model = load_height_model(posed)
     return posed, model, reading
@@ -260,10 +260,10 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
 
     ``on_frame`` is called after every frame (batch workers report progress through it).
     ``height.model = ""`` is resolved here by what the config tells of the camera
-    (``core.config.model_for_camera``): every caller, benchmarks too, runs what ``heightpipe run`` runs.
+    (``pipeline.scene_camera.model_for``): every caller, benchmarks too, runs what ``heightpipe run`` runs.
     """
     told = config
-    config = model_for_camera(config)
+    config = model_for(config)
     # The network, the stages' and the sinks' libraries first (~1.2 s): a live stream's frames
     # pile up from the moment it is opened, and those the run cannot catch up with are dropped.
     model = load_height_model(config)

@@ -23,13 +23,29 @@ from typing import Iterator
 
 import numpy as np
 
-from core.config import HEIGHT_ONLY_MODEL, Config, told_height_only
+from core.config import HEIGHT_ONLY_MODEL, Config, model_for_camera, told_height_only
 from core.errors import ConfigError
 from core.packets import HeightCamera
 
 MIN_PITCH_DEG = 0.5
 """A camera read as this level or looking up is not posed: ``[camera]`` cannot say "level"
 (pitch 0 means unknown), and a CCTV camera looking up sees no ground to measure on."""
+
+
+def knows_height_only(config: Config) -> bool:
+    """Whether a run with ``config`` knows its camera's height and none of its pose: no pitch in
+    ``[camera]``, and no calibration file or one with the lens alone (read here)."""
+    from stages.calibration import load_calibration
+
+    camera = config.camera
+    if not told_height_only(camera, file_has_pose=False):
+        return False
+    return not camera.calibration or load_calibration(camera.calibration).R is None
+
+
+def model_for(config: Config) -> Config:
+    """``core.config.model_for_camera`` for ``config``, its calibration file read for a pose."""
+    return model_for_camera(config, file_has_pose=not knows_height_only(config))
 
 
 def reads_scene(config: Config) -> bool:
@@ -39,7 +55,7 @@ def reads_scene(config: Config) -> bool:
         raise ConfigError(f"camera.read_scene_frames must be 0 (off) or more, camera.read_scene_s above 0 and "
                           f"camera.read_scene_live_s 0 (off) or more, got {camera.read_scene_frames}, "
                           f"{camera.read_scene_s} and {camera.read_scene_live_s}")
-    return config.camera.read_scene_frames > 0 and told_height_only(config.camera)
+    return config.camera.read_scene_frames > 0 and knows_height_only(config)
 
 
 @dataclass
@@ -66,17 +82,22 @@ def pose_from_scene(config: Config, images: list[np.ndarray], model=None,
 
     ``model``: a loaded v2 ``HeightNetModel`` to read with (one is loaded when it is None or a v1).
     """
-    from stages.calibration import camera_for_run, fov_from_focal
+    from stages.calibration import camera_for_run, fov_from_focal, has_distortion
     from stages.contact_heights import read_scene
     from stages.heightnet_model import HeightNetModel
     from stages.scene_picture import scene_camera_picture
+    from stages.undistortion import Undistorter
 
-    if not images or not told_height_only(config.camera):
+    if not images or not knows_height_only(config):
         return config, None
     if model is None or not model.info.contact:
         model = HeightNetModel(HEIGHT_ONLY_MODEL, config.height.threads)
     height, width = images[0].shape[:2]
-    used, reader = read_scene(model, images, camera_for_run(config.camera, width, height))
+    camera = camera_for_run(config.camera, width, height)   # a lens-only file's focal length is used as given
+    if has_distortion(camera):   # straight lines are straight in the frames the run measures on
+        undistorter = Undistorter(camera)
+        images, camera = [undistorter.undistort(image) for image in images], undistorter.camera
+    used, reader = read_scene(model, images, camera)
     if used is None or not MIN_PITCH_DEG <= used.pitch_deg < 90.0 or (needs_lines and not used.edges):
         return config, None
     posed = replace(config.camera, pitch_deg=round(used.pitch_deg, 2), roll_deg=round(used.roll_deg, 2),

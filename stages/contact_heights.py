@@ -125,12 +125,13 @@ class ContactHeights:
             mean, std = np.asarray(outputs[:3], np.float64), np.full(3, np.inf)
         K = input_intrinsics(camera, in_w, in_h) if camera.lens_from_file and camera.K is not None else None
         focal_given = K is not None
+        correlation = self.error_correlation
         if focal_given:  # the file's focal length, in image heights, known exactly
-            mean, std = mean.copy(), std.copy()
-            mean[2], std[2] = math.log(float(camera.K[1, 1]) / camera.height), 1e-6
+            log_focal = math.log(float(camera.K[1, 1]) / camera.height)
+            mean, std, correlation = given_focal(mean, std, correlation, log_focal)
         if self.samples is not None and image is not None and self.samples.add(image, output.ground_logit):
             upright, ground, (width, height) = self.samples.segments()
-            self.edge_fit = fit_to_edges(mean, std, self.error_correlation, upright, width, height, ground)
+            self.edge_fit = fit_to_edges(mean, std, correlation, upright, width, height, ground)
         edges = 0
         if self.edge_fit is not None:
             mean, std, edges = self.edge_fit.values, self.edge_fit.std, self.edge_fit.edges
@@ -143,6 +144,30 @@ class ContactHeights:
             focal_std_pct=0.0 if focal_given else math.expm1(std[2]) * 100.0,
             frames=self.heads.frames, focal_given=focal_given, edges=edges)
         return pinhole, used
+
+
+def given_focal(mean: np.ndarray, std: np.ndarray, correlation: np.ndarray,
+                log_focal: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The heads' (pitch, roll, log focal) mean, spread and correlation once the focal length is
+    known (a calibration file's, in log image heights): Gaussian conditioning.
+
+    Why not just replace the focal length: the heads' pitch error goes with their focal length's
+    (correlation -0.81 on fresh cameras: the horizon, f tan pitch, is what they see best), so how
+    far their focal length was off says how far their pitch is, and by how much less to doubt it.
+    """
+    mean, std = np.asarray(mean, np.float64).copy(), np.asarray(std, np.float64).copy()
+    if not (np.all(np.isfinite(std)) and std[2] > 0):
+        mean[2], std[2] = log_focal, 1e-6
+        return mean, std, np.eye(3)
+    covariance = np.diag(std) @ np.asarray(correlation, np.float64) @ np.diag(std)
+    cross = covariance[:2, 2]
+    mean[:2] += cross / covariance[2, 2] * (log_focal - mean[2])
+    rest = covariance[:2, :2] - np.outer(cross, cross) / covariance[2, 2]
+    std[:2] = np.sqrt(np.maximum(np.diag(rest), 1e-12))
+    mean[2], std[2] = log_focal, 1e-6
+    conditioned = np.eye(3)
+    conditioned[0, 1] = conditioned[1, 0] = rest[0, 1] / (std[0] * std[1])
+    return mean, std, conditioned
 
 
 def read_scene_camera(model, images, camera: CameraInfo) -> HeightCamera | None:

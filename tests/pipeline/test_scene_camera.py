@@ -21,10 +21,13 @@ def _config(**camera) -> Config:
     (dict(height_m=6.0), True),                                  # the height alone: read the rest
     (dict(height_m=6.0, read_scene_frames=0), False),            # switched off
     (dict(height_m=6.0, pitch_deg=20.0), False),                 # a pose given
-    (dict(height_m=6.0, calibration="cam.json"), False),         # a calibration file given
+    (dict(height_m=6.0, calibration="posed"), False),            # a calibration file with a pose
+    (dict(height_m=6.0, calibration="lens"), True),              # ... with the lens alone: read the rest
     (dict(), False),                                             # nothing known: no metres to pose
 ])
-def test_only_a_run_told_just_the_camera_height_reads_the_scene(camera, reads):
+def test_only_a_run_told_just_the_camera_height_reads_the_scene(tmp_path, camera, reads):
+    if "calibration" in camera:
+        camera = {**camera, "calibration": _lens_file(tmp_path, pose=camera["calibration"] == "posed")}
     assert reads_scene(_config(**camera)) == reads
 
 
@@ -123,3 +126,37 @@ def test_a_live_stream_gives_its_first_seconds_spread_over_slots(fps, count, spa
         assert len(values) == 30 and values == sorted(set(values)) and values[-1] == 49
     following = next(stream, None)            # the stream goes on where the reading stopped
     assert following is None if fps == 2.0 else following.index == taken
+
+
+def _lens_file(tmp_path, pose: bool = False):
+    import json
+
+    data = {"image_size": [320, 240], "K": [[216.0, 0, 159.5], [0, 216.0, 119.5], [0, 0, 1]]}
+    if pose:
+        data.update({"camera_height_m": 6.0, "pitch_deg": 30.0})
+    path = tmp_path / ("posed.json" if pose else "lens.json")
+    path.write_text(json.dumps(data))
+    return str(path)
+
+
+def test_a_lens_only_calibration_file_leaves_the_height_the_only_part_of_the_pose_known(tmp_path):
+    from pipeline.scene_camera import knows_height_only, model_for
+
+    lens, posed = _lens_file(tmp_path), _lens_file(tmp_path, pose=True)
+    assert knows_height_only(_config(height_m=6.0, calibration=lens))
+    assert not knows_height_only(_config(height_m=6.0, calibration=posed))
+    assert not knows_height_only(_config(calibration=lens))                  # no height: nothing to pose
+    # Not read (or not readable): v2 and its heads, with the file's focal length, as for no file.
+    not_read = _config(height_m=6.0, calibration=lens, read_scene_frames=0)
+    assert (model_for(not_read).height.model, model_for(not_read).objects.source) == ("v2", "network")
+    assert model_for(_config(height_m=6.0, calibration=posed)).height.model == ""
+
+
+def test_with_a_lens_only_file_the_scene_gives_pitch_and_roll_and_the_file_the_focal_length(tmp_path):
+    model = _contact_model(tmp_path, 0.4)
+    told = _config(height_m=6.0, calibration=_lens_file(tmp_path))
+    posed, reading = pose_from_scene(told, _pole_frames(), model)
+    assert reading.camera.focal_given and reading.camera.focal_px == pytest.approx(216.0)
+    assert 28.0 < reading.camera.pitch_deg < 32.0 and reading.camera.edges >= 8
+    assert posed.camera.calibration == told.camera.calibration and posed.camera.self_calibrated
+    assert posed.camera.focal_std_pct == 0.0

@@ -231,3 +231,21 @@ def test_config_pose_rotation_matches_the_heads_convention():
     """The heads' pitch and roll (camera_from_angles) are the calibration's pitch_deg and roll_deg."""
     heads = camera_from_heads([math.radians(PITCH_DEG), math.radians(ROLL_DEG), 0.0], IN_W, IN_H, (IN_W, IN_H), 5.0)
     np.testing.assert_allclose(heads.R, rotation_from_angles(PITCH_DEG, ROLL_DEG), atol=1e-12)
+
+
+def test_a_known_focal_length_moves_the_heads_pitch_by_how_far_their_focal_length_was_off():
+    """Gaussian conditioning: with pitch and focal errors correlated at -0.8, heads that read the
+    focal length 0.3 (log) short read the pitch too high by 0.8 x (std_p / std_f) x 0.3."""
+    from stages.contact_heights import given_focal
+
+    mean = np.array([0.60, 0.01, np.log(1.0)])
+    std = np.array([0.10, 0.02, 0.30])
+    correlation = np.array([[1.0, 0.1, -0.8], [0.1, 1.0, 0.0], [-0.8, 0.0, 1.0]])
+    conditioned, spread, after = given_focal(mean, std, correlation, np.log(1.0) + 0.3)
+    assert conditioned[0] == pytest.approx(0.60 - 0.8 * (0.10 / 0.30) * 0.3)
+    assert conditioned[1] == pytest.approx(0.01) and conditioned[2] == pytest.approx(0.3)
+    assert spread[0] == pytest.approx(0.10 * np.sqrt(1 - 0.8 ** 2)) and spread[1] == pytest.approx(0.02)
+    assert spread[2] < 1e-5 and after[0, 2] == after[2, 0] == 0.0
+    assert after[0, 1] == pytest.approx(0.1 / np.sqrt(1 - 0.8 ** 2))
+    unrelated, _, _ = given_focal(mean, std, np.eye(3), np.log(1.0) + 0.3)
+    assert unrelated[0] == pytest.approx(0.60)                 # uncorrelated errors: the pitch stays
