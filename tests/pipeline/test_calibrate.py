@@ -99,6 +99,23 @@ def test_told_the_height_calibrate_draws_the_camera_it_read(tmp_path, capsys):
     assert green.sum() > 100 and white.sum() > 100        # the poles that agreed, the bars
 
 
+def test_told_the_height_and_the_lens_calibrate_reads_undistorted_frames_with_the_file_s_focal(tmp_path, capsys):
+    import tomllib
+
+    from media import write_pole_video
+    from pipeline.cli import main
+
+    lens = tmp_path / "lens.json"
+    lens.write_text(json.dumps({"image_size": [320, 240], "K": [[216.0, 0, 159.5], [0, 216.0, 119.5], [0, 0, 1]],
+                                "dist": [0.02, 0.0, 0.0, 0.0]}))
+    video = write_pole_video(tmp_path / "poles.mp4")
+    assert main(["calibrate", str(video), "--camera-height", "6", "--calibration", str(lens), "--no-progress"]) == 0
+    printed = capsys.readouterr()
+    camera = tomllib.loads(printed.out)["camera"]
+    assert camera["calibration"] == str(lens) and "fov_deg" not in camera and "focal_std_pct" not in camera
+    assert 27.0 < camera["pitch_deg"] < 33.0 and "focal 216 px" in printed.err
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--camera-height", "0"], "--camera-height must be the mounting height in metres"),
     (["--camera-height", "5", "--set", 'height.model="v1"'], "needs a HeightNet v2 model"),
