@@ -70,8 +70,8 @@ class SceneReading:
 def pose_from_scene(config: Config, images: list[np.ndarray], model=None,
                     needs_lines: bool = True) -> tuple[Config, SceneReading | None]:
     """``config`` with ``[camera]`` posed by the camera read from ``images`` (BGR frames at the
-    run's size), and that reading; ``config`` unchanged and None when it is not told only the
-    camera height, there are no images, the camera read is level or looking up, or (with
+    run's size), and that reading; ``config`` unchanged and None when it knows more of its camera
+    than the height (``knows_height_only``), there are no images, the camera read is level or looking up, or (with
     ``needs_lines``) no straight lines of the scene agreed with the heads.
 
     Why a run needs the lines: without them the camera read is the heads' guess alone, which v2
