@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from core.config import NETWORK_OBJECTS_KEYS, Config, told_height_only
+from core.config import NETWORK_OBJECTS_KEYS, Config
 from core.errors import HeightpipeError
 
 MANIFEST_NAME = "manifest.json"
@@ -55,6 +55,7 @@ def config_fingerprint(config: Config) -> str:
     The model file's size and mtime are part of it, so retraining into the same path redoes
     the archive.
     """
+    from pipeline.scene_camera import knows_height_only
     from stages.heightnet_model import model_file
 
     relevant = {name: dataclasses.asdict(getattr(config, name))
@@ -66,8 +67,9 @@ def config_fingerprint(config: Config) -> str:
     relevant["output"].pop("progress")
     relevant["output"].pop("directory")
     # Keys that came later and change nothing where they are not read: archives made before them
-    # are not redone for them alone. The reading keys are read only by runs told just the height.
-    if not told_height_only(config.camera):
+    # are not redone for them alone. The reading keys are read only by runs that know the camera's
+    # height and none of its pose (a lens-only calibration file included).
+    if not knows_height_only(config):
         for key in ("read_scene_frames", "read_scene_s", "read_scene_live_s"):
             relevant["camera"].pop(key)
     for key in ("pitch_std_deg", "roll_std_deg", "focal_std_pct"):
