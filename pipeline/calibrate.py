@@ -125,10 +125,9 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     from tqdm import tqdm
 
     from core.errors import ConfigError, HeightpipeError
-    from stages.calibration import camera_for_run, fov_from_focal, has_distortion
+    from stages.calibration import camera_for_run, fov_from_focal
     from stages.capture import open_source
     from stages.contact_heights import read_scene
-    from stages.undistortion import Undistorter
     from stages.heightnet_model import HeightNetModel
     from stages.self_calibration import toml_string
     from stages.vertical_edges import FIRST_FIT_SAMPLES, SAMPLE_EVERY
@@ -151,15 +150,12 @@ def scene_camera(args: argparse.Namespace, config) -> int:
         raise
     camera = dataclasses.replace(lens, R=None, t=None, height_m=float(args.camera_height), source="camera-height",
                                  pose_from="")
-    # Straight lines are straight only in undistorted frames (what a run with the snippet measures on).
-    undistorter = Undistorter(camera) if has_distortion(camera) else None
-    camera = undistorter.camera if undistorter is not None else camera
     progress = tqdm(total=source.stats.expected, unit="frame", disable=args.no_progress or not config.output.progress,
                     desc="reading the scene", dynamic_ncols=True, file=sys.stderr)
 
     def images():
         for frame in source.frames():
-            yield frame.image if undistorter is None else undistorter.undistort(frame.image)
+            yield frame.image
             progress.update(1)
 
     used = None

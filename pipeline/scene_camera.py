@@ -82,22 +82,18 @@ def pose_from_scene(config: Config, images: list[np.ndarray], model=None,
 
     ``model``: a loaded v2 ``HeightNetModel`` to read with (one is loaded when it is None or a v1).
     """
-    from stages.calibration import camera_for_run, fov_from_focal, has_distortion
+    from stages.calibration import camera_for_run, fov_from_focal
     from stages.contact_heights import read_scene
     from stages.heightnet_model import HeightNetModel
     from stages.scene_picture import scene_camera_picture
-    from stages.undistortion import Undistorter
 
     if not images or not knows_height_only(config):
         return config, None
     if model is None or not model.info.contact:
         model = HeightNetModel(HEIGHT_ONLY_MODEL, config.height.threads)
     height, width = images[0].shape[:2]
-    camera = camera_for_run(config.camera, width, height)   # a lens-only file's focal length is used as given
-    if has_distortion(camera):   # straight lines are straight in the frames the run measures on
-        undistorter = Undistorter(camera)
-        images, camera = [undistorter.undistort(image) for image in images], undistorter.camera
-    used, reader = read_scene(model, images, camera)
+    # A lens-only file's focal length is used as given (and its distortion removed: read_scene).
+    used, reader = read_scene(model, images, camera_for_run(config.camera, width, height))
     if used is None or not MIN_PITCH_DEG <= used.pitch_deg < 90.0 or (needs_lines and not used.edges):
         return config, None
     posed = replace(config.camera, pitch_deg=round(used.pitch_deg, 2), roll_deg=round(used.roll_deg, 2),

@@ -28,7 +28,7 @@ import numpy as np
 
 from core.errors import ConfigError
 from core.packets import CameraInfo, HeightCamera
-from stages.calibration import angles_from_rotation, camera_centre
+from stages.calibration import angles_from_rotation, camera_centre, has_distortion
 from stages.camera_heads import HeadsAverage, camera_from_heads
 from stages.ground_contact import PinholeCamera, heights_from_offsets
 from stages.heightnet_model import ModelOutput
@@ -179,7 +179,16 @@ def read_scene_camera(model, images, camera: CameraInfo) -> HeightCamera | None:
 
 def read_scene(model, images, camera: CameraInfo) -> tuple[HeightCamera | None, ContactHeights]:
     """``read_scene_camera``'s camera and the reader that read it: its ``samples`` (the scene's
-    median) and ``edge_fit`` (the lines that agreed) are what a picture of the reading shows."""
+    median) and ``edge_fit`` (the lines that agreed) are what a picture of the reading shows.
+
+    Frames of a lens with distortion (a calibration file's) are undistorted first: straight lines
+    are straight only there, and a run with the camera read measures on undistorted frames.
+    """
+    from stages.undistortion import Undistorter
+
+    if has_distortion(camera):
+        undistorter = Undistorter(camera)
+        images, camera = (undistorter.undistort(image) for image in images), undistorter.camera
     contact = ContactHeights(spread_scale=model.info.camera_spread_scale,
                              error_correlation=model.info.camera_error_correlation, vertical_edges=True)
     used = None

@@ -98,6 +98,18 @@ def pole_scene(values=(0.5236, 0.0349, -0.1054), size=(320, 240), poles=8, seed=
     return image, np.array(segments), camera
 
 
+def write_lens_calibration(path: Path, dist: list[float] | None = None, pose: bool = False) -> Path:
+    """A calibration JSON for the 320x240 pole scene's lens (focal 216 px): the lens alone, or
+    with ``dist`` and (``pose``) a 6 m, 30 degree pose."""
+    data: dict = {"image_size": [320, 240], "K": [[216.0, 0, 159.5], [0, 216.0, 119.5], [0, 0, 1]]}
+    if dist is not None:
+        data["dist"] = dist
+    if pose:
+        data.update({"camera_height_m": 6.0, "pitch_deg": 30.0})
+    path.write_text(json.dumps(data))
+    return path
+
+
 def write_pole_video(path: Path, frames: int = 30, fps: float = 10.0) -> Path:
     """The pole scene (``pole_scene``, 320x240) with a dark box walking across: a video whose
     camera can be read from its straight lines."""

@@ -346,8 +346,9 @@ def test_what_a_rerun_redoes(tmp_path):
     told_not_read = Config()
     told_not_read.camera.height_m, told_not_read.camera.read_scene_frames = 6.0, 0
     assert config_fingerprint(told) != config_fingerprint(told_not_read)
-    lens = tmp_path / "lens.json"
-    lens.write_text('{"image_size": [320, 240], "K": [[216, 0, 160], [0, 216, 120], [0, 0, 1]]}')
+    from media import write_lens_calibration
+
+    lens = write_lens_calibration(tmp_path / "lens.json")
     lens_told, lens_not_read = Config(), Config()
     lens_told.camera.height_m, lens_told.camera.calibration = 6.0, str(lens)
     lens_not_read.camera.height_m, lens_not_read.camera.calibration = 6.0, str(lens)

@@ -102,12 +102,10 @@ def test_told_the_height_calibrate_draws_the_camera_it_read(tmp_path, capsys):
 def test_told_the_height_and_the_lens_calibrate_reads_undistorted_frames_with_the_file_s_focal(tmp_path, capsys):
     import tomllib
 
-    from media import write_pole_video
+    from media import write_lens_calibration, write_pole_video
     from pipeline.cli import main
 
-    lens = tmp_path / "lens.json"
-    lens.write_text(json.dumps({"image_size": [320, 240], "K": [[216.0, 0, 159.5], [0, 216.0, 119.5], [0, 0, 1]],
-                                "dist": [0.02, 0.0, 0.0, 0.0]}))
+    lens = write_lens_calibration(tmp_path / "lens.json", dist=[0.02, 0.0, 0.0, 0.0])
     video = write_pole_video(tmp_path / "poles.mp4")
     assert main(["calibrate", str(video), "--camera-height", "6", "--calibration", str(lens), "--no-progress"]) == 0
     printed = capsys.readouterr()

@@ -129,14 +129,9 @@ def test_a_live_stream_gives_its_first_seconds_spread_over_slots(fps, count, spa
 
 
 def _lens_file(tmp_path, pose: bool = False):
-    import json
+    from media import write_lens_calibration
 
-    data = {"image_size": [320, 240], "K": [[216.0, 0, 159.5], [0, 216.0, 119.5], [0, 0, 1]]}
-    if pose:
-        data.update({"camera_height_m": 6.0, "pitch_deg": 30.0})
-    path = tmp_path / ("posed.json" if pose else "lens.json")
-    path.write_text(json.dumps(data))
-    return str(path)
+    return str(write_lens_calibration(tmp_path / ("posed.json" if pose else "lens.json"), pose=pose))
 
 
 def test_a_lens_only_calibration_file_leaves_the_height_the_only_part_of_the_pose_known(tmp_path):
