@@ -213,6 +213,41 @@ def test_ground_lines_fix_the_horizon_the_edges_cannot():
     assert abs(with_ground.values[2] - TRUE[2]) < 0.02 and with_ground.edges == len(poles) + 20
 
 
+def heads_along_the_horizon(pitch_off_deg):
+    """The heads off in the one way ground lines alone cannot see: pitch and focal length moved
+    together so the horizon (f tan pitch) stays where it is."""
+    pitch = TRUE[0] + math.radians(pitch_off_deg)
+    return np.array([pitch, TRUE[1], math.log(math.exp(TRUE[2]) * math.tan(TRUE[0]) / math.tan(pitch))])
+
+
+def test_two_families_at_right_angles_fix_the_focal_length_without_verticals():
+    """No verticals (an open car park): two families put the horizon right, and only that they
+    cross at right angles on the ground (bays and lanes, tiles) says the focal length."""
+    ground = ground_lines(directions=((1.0, 1.0), (-1.0, 1.0)))
+    heads = heads_along_the_horizon(6.0)
+    fit = fit_to_edges(heads, HEADS_STD, np.eye(3), np.zeros((0, 4)), W, H, ground)
+    assert fit is not None and len(fit.families) == 2
+    assert abs(math.degrees(fit.values[0] - TRUE[0])) < 0.5
+    assert abs(fit.values[2] - TRUE[2]) < 0.05
+    assert fit.std[0] < HEADS_STD[0] / 2         # and it says so
+
+
+def test_families_far_from_right_angles_are_not_bent_to_them():
+    """A road meeting another at 45 degrees is no grid: the fit leaves pitch and focal length
+    along the horizon to the heads, as it did before the right-angle rule."""
+    ground = ground_lines(directions=((1.0, 0.0), (1.0, 1.0)))
+    heads = heads_along_the_horizon(6.0)
+    fit = fit_to_edges(heads, HEADS_STD, np.eye(3), np.zeros((0, 4)), W, H, ground)
+    assert fit is not None and len(fit.families) == 2
+    assert abs(math.degrees(fit.values[0] - heads[0])) < 1.0       # stayed with the heads
+    assert f_tan_pitch(fit.values) == pytest.approx(f_tan_pitch(TRUE), rel=0.02)   # the horizon is right
+
+
+def f_tan_pitch(values):
+    """Where the horizon crosses the middle column, above the centre, in image heights."""
+    return math.exp(values[2]) * math.tan(values[0])
+
+
 def test_the_camera_alone_is_the_camera_decode_reports():
     """``heads_camera`` (calibrate, the bench) skips the heights but not the camera's state."""
     bgr, output, told_height = poles_told_only_the_height()
