@@ -243,6 +243,22 @@ def test_families_far_from_right_angles_are_not_bent_to_them():
     assert f_tan_pitch(fit.values) == pytest.approx(f_tan_pitch(TRUE), rel=0.02)   # the horizon is right
 
 
+def test_families_are_searched_again_around_the_fitted_horizon():
+    """Heads 5 degrees off in roll: a family meeting far out to the side lies well off their
+    horizon, outside the band searched first; the poles right the roll, and the search around
+    the fitted horizon finds it."""
+    _, poles = pole_scene()
+    ground = ground_lines(directions=((0.15, 1.0), (1.0, -0.15)))     # one ahead, one far to the side
+    heads = TRUE + np.array([0.0, math.radians(5.0), 0.0])
+    std = np.array([HEADS_STD[0], math.radians(2.0), HEADS_STD[2]])
+    covariance = np.diag(std) ** 2
+    assert len(ground_families(ground, heads, covariance, W, H)) == 1
+    fit = fit_to_edges(heads, std, np.eye(3), poles, W, H, ground)
+    assert sorted(len(f) for f in fit.families) == [10, 10]
+    assert fit.edges == len(poles) + 20
+    assert abs(math.degrees(fit.values[1] - TRUE[1])) < 0.3
+
+
 def f_tan_pitch(values):
     """Where the horizon crosses the middle column, above the centre, in image heights."""
     return math.exp(values[2]) * math.tan(values[0])
