@@ -12,10 +12,11 @@ FILE.json`` also writes a complete calibration JSON (intrinsics, distortion, pos
 With ``--camera-height M`` (``scene_camera``): no people needed. HeightNet v2's camera heads
 guess pitch, roll and focal length from each frame, and the scene's straight lines sharpen the
 guess (``stages/vertical_edges.py``: walls and poles meet at the vertical vanishing point,
-parallel kerbs and markings on the horizon). The ``[camera]`` snippet it prints makes the next
-run a posed one (HeightNet v1, moving objects, the geometry channel): on 40 held-out generator
-sequences tracked people 13.8 cm off against 25.0 for a run told only the height, on Oxford Town
-Centre 11.4 against 11.6 (docs/results.md, 2026-12-04 tenth session). A run told only the
+parallel kerbs and markings on the horizon, families crossing square). The ``[camera]`` snippet
+it prints makes the next run a posed one (HeightNet v1, moving objects, the geometry channel): on
+40 held-out generator sequences tracked people 12.4 cm off against 25.0 for a run told only the
+height, on Oxford Town Centre 11.4 against 11.6 (docs/results.md, 2026-12-04 tenth session and
+2026-12-05). A run told only the
 height now reads its camera this way by itself (``pipeline/scene_camera.py``, from its first
 frames or a stream's first seconds); this command reads one once, from a whole recording or a
 stream's first minutes, to keep.

@@ -18,7 +18,7 @@ heads were built for (docs/results.md, 2026-12-04 eighth session)."""
 HEADS_HINT = ("the camera's pitch and focal length above are the network's guess frame by frame, not read from "
               "the first frames; `heightpipe calibrate SOURCE --camera-height H --max-frames 300 > camera.toml` "
               "reads them from the scene's straight lines, then `heightpipe run SOURCE --config camera.toml` "
-              "(held-out scenes: people 13.8 cm off against 25; README, 'Your own camera'), or give --calibration FILE")
+              "(held-out scenes: people 12.4 cm off against 25; README, 'Your own camera'), or give --calibration FILE")
 """Said when a v2 run decoded with its camera heads: their pitch is good to about 3-4 degrees on
 cameras they never saw (docs/results.md, 2026-12-04 ninth session), and the scene's lines read
 it to about one (tenth session). A run reads them itself first unless told not to
