@@ -93,6 +93,8 @@ class HeightCamera:
     edges: int = 0
     """Heads path only: straight lines of the scene (vertical edges, parallel ground lines) the
     heads' camera was sharpened with (``stages/vertical_edges.py``; 0 = the heads alone)."""
+    square_families: bool = False
+    """Heads path only: two families of ground lines were taken to cross at right angles."""
 
 
 @dataclass

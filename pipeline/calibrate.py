@@ -131,6 +131,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     from stages.contact_heights import read_scene
     from stages.heightnet_model import HeightNetModel
     from stages.self_calibration import toml_string
+    from stages.sink_common import lines_text
     from stages.vertical_edges import FIRST_FIT_SAMPLES, SAMPLE_EVERY
 
     if not args.camera_height > 0:
@@ -174,7 +175,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
         write_scene_picture(args.picture, reader, used, width)
     fov = fov_from_focal(width, used.focal_px)
     first_fit = SAMPLE_EVERY * (FIRST_FIT_SAMPLES - 1) + 1
-    lines_note = (f"{used.edges} straight lines of the scene" if used.edges else
+    lines_note = (lines_text(used) if used.edges else
                   f"too few frames for the scene's lines ({first_fit} needed): the heads alone, worth checking"
                   if used.frames < first_fit else "no straight lines agreed: the heads alone, worth checking")
     print("\n".join([

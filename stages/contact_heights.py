@@ -132,9 +132,10 @@ class ContactHeights:
         if self.samples is not None and image is not None and self.samples.add(image, output.ground_logit):
             upright, ground, (width, height) = self.samples.segments()
             self.edge_fit = fit_to_edges(mean, std, correlation, upright, width, height, ground)
-        edges = 0
+        edges, square = 0, False
         if self.edge_fit is not None:
-            mean, std, edges = self.edge_fit.values, self.edge_fit.std, self.edge_fit.edges
+            fit = self.edge_fit
+            mean, std, edges, square = fit.values, fit.std, fit.edges, fit.square
         pinhole = camera_from_heads(mean, in_w, in_h, (camera.width, camera.height), camera.height_m, K)
         used = HeightCamera(
             source="heads" if camera.source != "none" else "assumed", height_m=float(camera.height_m),
@@ -142,7 +143,7 @@ class ContactHeights:
             focal_px=float(camera.K[1, 1]) if focal_given else math.exp(mean[2]) * camera.height,
             pitch_std_deg=math.degrees(std[0]), roll_std_deg=math.degrees(std[1]),
             focal_std_pct=0.0 if focal_given else math.expm1(std[2]) * 100.0,
-            frames=self.heads.frames, focal_given=focal_given, edges=edges)
+            frames=self.heads.frames, focal_given=focal_given, edges=edges, square_families=square)
         return pinhole, used
 
 

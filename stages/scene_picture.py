@@ -45,7 +45,8 @@ def scene_camera_picture(median_grey: np.ndarray, used: HeightCamera, frame_widt
     _draw_bars(picture, camera, thickness)
     lines = [f"camera read: pitch {used.pitch_deg:.1f} +-{used.pitch_std_deg:.1f} deg, roll {used.roll_deg:.1f} "
              f"+-{used.roll_std_deg:.1f}, focal {used.focal_px:.0f} px +-{used.focal_std_pct:.0f}%",
-             f"{used.edges} lines agreed (green: vertical; orange, pink: ground) | bars: {BAR_M:.2f} m"
+             f"{used.edges} lines agreed (green: vertical; orange, pink: ground"
+             + (", taken as square" if used.square_families else "") + f") | bars: {BAR_M:.2f} m"
              + (f" | {horizon_note}" if horizon_note else "")]
     _draw_text(picture, lines)
     return picture
@@ -93,6 +94,7 @@ def _draw_bars(picture: np.ndarray, camera, thickness: int) -> None:
 
 def _draw_text(picture: np.ndarray, lines: list[str]) -> None:
     scale = max(0.35, picture.shape[1] / 1400)
+    lines = _wrapped(lines, scale, picture.shape[1] - 10)
     (_, line_h), _ = cv2.getTextSize("Ag", cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
     step = math.ceil(line_h * 1.8)
     width = max(cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] for text in lines)
@@ -100,3 +102,22 @@ def _draw_text(picture: np.ndarray, lines: list[str]) -> None:
     for k, text in enumerate(lines):
         cv2.putText(picture, text, (5, step * (k + 1)), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1,
                     cv2.LINE_AA)
+
+
+def _wrapped(lines: list[str], scale: float, width: int) -> list[str]:
+    """Lines too wide for the picture broken at their " | " separators (a small frame's legend
+    would run off its edge)."""
+    def fits(text: str) -> bool:
+        return cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] <= width
+
+    out = []
+    for line in lines:
+        current = ""
+        for part in line.split(" | "):
+            joined = f"{current} | {part}" if current else part
+            if current and not fits(joined):
+                out.append(current)
+                joined = part
+            current = joined
+        out.append(current)
+    return out

@@ -167,9 +167,15 @@ def estimate_text(camera: HeightCamera) -> str:
     focal = (f"focal {camera.focal_px:.0f} px (calibration file)" if camera.focal_given
              else f"focal {camera.focal_px:.0f} px ±{camera.focal_std_pct:.0f}%")
     estimated = "pitch, roll" if camera.focal_given else "pitch, roll, focal length"
-    heads = "network's camera heads" + (f" and {camera.edges} straight lines of the scene" if camera.edges else "")
+    heads = "network's camera heads" + (f" and {lines_text(camera)}" if camera.edges else "")
     return (f"{estimated} from the {heads}: pitch {_degrees(camera.pitch_deg)} ±{camera.pitch_std_deg:.1f}°, "
             f"roll {_degrees(camera.roll_deg)} ±{camera.roll_std_deg:.1f}°, {focal}")
+
+
+def lines_text(camera: HeightCamera) -> str:
+    """'55 straight lines of the scene', saying so when two ground families were taken as square."""
+    square = " (two families of ground lines taken to cross at right angles)" if camera.square_families else ""
+    return f"{camera.edges} straight lines of the scene{square}"
 
 
 def _degrees(angle: float) -> str:

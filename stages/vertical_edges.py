@@ -111,6 +111,9 @@ class EdgeFit:
     edges: int
     vertical: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     families: tuple[np.ndarray, ...] = ()
+    square: bool = False
+    """The two families were fitted crossing at right angles (``ORTHOGONAL_GATE_DEG``): an
+    assumption a user should see, since a scene laid out otherwise would mislead it."""
 
 
 def vanishing_point(values: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -273,8 +276,9 @@ def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, s
         return None
     # Two families near a right angle: fitted again, crossing at one. Where no verticals agree,
     # this alone says the focal length (the families fix only the horizon, f tan pitch).
-    if len(families) == 2 and abs(_families_cosine(solution.x, width, height)) < math.sin(
-            math.radians(ORTHOGONAL_GATE_DEG)):
+    square = len(families) == 2 and abs(_families_cosine(solution.x, width, height)) < math.sin(
+        math.radians(ORTHOGONAL_GATE_DEG))
+    if square:
         solution = _least_squares(values, whiten, used, families, width, height, solution.x,
                                   _bounds(values, std, families), orthogonal=True)
     lines = sum(len(group) for group in [used, *(f.segments for f in families)])
@@ -291,7 +295,7 @@ def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, s
     groups = [used, *(f.segments for f in families)]     # their rows come in this order
     ends = np.cumsum([len(group) for group in groups])
     agreeing = [group[inliers[end - len(group):end]] for group, end in zip(groups, ends)]
-    return EdgeFit(solution.x[:3], np.sqrt(np.diag(posterior)), count, agreeing[0], tuple(agreeing[1:]))
+    return EdgeFit(solution.x[:3], np.sqrt(np.diag(posterior)), count, agreeing[0], tuple(agreeing[1:]), square)
 
 
 def _gated_fit(values: np.ndarray, std: np.ndarray, whiten: np.ndarray, segments: np.ndarray,

@@ -63,3 +63,18 @@ def test_a_run_posed_from_its_first_frames_says_what_it_read():
     assert "30 early frames: height 7.84 m given" in line and "55 straight lines of the scene" in line
     assert "pitch 20.5° ±1.3°, roll 1.3° ±0.6°, focal 1379 px ±7%" in line
     assert "hint" not in text
+    assert "right angles" not in text
+
+
+def test_a_camera_read_assuming_square_ground_lines_says_so():
+    """Two families taken to cross at right angles is an assumption the scene may break."""
+    from dataclasses import replace
+
+    from core.packets import HeightCamera
+
+    read = HeightCamera("heads", 6.4, 32.0, 1.5, 552.0, frames=30, edges=48, square_families=True)
+    text = format_summary(RunSummary(source="cam", camera_source="self", scene_camera=read))
+    assert "48 straight lines of the scene (two families of ground lines taken to cross at right angles)" in text
+    plain = format_summary(RunSummary(source="cam", camera_source="self",
+                                      scene_camera=replace(read, square_families=False)))
+    assert "48 straight lines of the scene:" in plain and "right angles" not in plain

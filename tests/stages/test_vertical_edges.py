@@ -230,6 +230,7 @@ def test_two_families_at_right_angles_fix_the_focal_length_without_verticals():
     assert abs(math.degrees(fit.values[0] - TRUE[0])) < 0.5
     assert abs(fit.values[2] - TRUE[2]) < 0.05
     assert fit.std[0] < HEADS_STD[0] / 2         # and it says so
+    assert fit.square
 
 
 def test_families_far_from_right_angles_are_not_bent_to_them():
@@ -240,6 +241,7 @@ def test_families_far_from_right_angles_are_not_bent_to_them():
     fit = fit_to_edges(heads, HEADS_STD, np.eye(3), np.zeros((0, 4)), W, H, ground)
     assert fit is not None and len(fit.families) == 2
     assert abs(math.degrees(fit.values[0] - heads[0])) < 1.0       # stayed with the heads
+    assert not fit.square
     assert f_tan_pitch(fit.values) == pytest.approx(f_tan_pitch(TRUE), rel=0.02)   # the horizon is right
 
 
