@@ -1,6 +1,6 @@
 """The camera a run told only its height ends with: the heads alone, and sharpened by the scene's lines.
 
-    python -m bench.camera_edges DATA [DATA ...] [--model v2] [--frames 0] [--per-sequence]
+    python -m bench.camera_edges DATA [DATA ...] [--model v2] [--frames 0 | --as-run] [--per-sequence]
 
 For each generator sequence (every frame, as ``heightpipe run --camera-height H`` sees it), the
 v2 network's camera heads are averaged as a run averages them (``stages/contact_heights.py``),
@@ -12,7 +12,9 @@ ground points across the image, foot and top projected with the true camera and 
 with the estimated one (cm; what a person standing there would be off by before any error of
 the network's offsets or boxes). Also: the share of sequences the lines were used on, and how
 often the truth lies within the reported ±1 std (68 % if honest). One table of medians per
-dataset; ``--per-sequence`` prints each sequence too.
+dataset; ``--per-sequence`` prints each sequence too. ``--as-run`` reads the frames a file run
+told only the height reads before its first frame (``[camera] read_scene_frames`` spread over
+``read_scene_s``: 30 of a 60-frame sequence at 10 frames/s) instead of the first ``--frames``.
 """
 
 from __future__ import annotations
@@ -82,18 +84,26 @@ def camera_error(true_camera, used, width: int, height: int) -> CameraError:
         edges=used.edges)
 
 
-def sequence_cameras(sequence, model, correlation, spread, max_frames: int = 0):
-    """The final ``HeightCamera`` of a heads-only and of an edge-sharpened run over ``sequence``."""
+def sequence_cameras(sequence, model, correlation, spread, max_frames: int = 0, as_run: bool = False):
+    """The final ``HeightCamera`` of a heads-only and of an edge-sharpened run over ``sequence``
+    (its first ``max_frames``, or with ``as_run`` the frames a run told only the height reads)."""
     import cv2
 
+    from core.config import Config
     from pipeline.eval_sequences import camera_info
+    from stages.capture import background_indices
     from stages.contact_heights import ContactHeights
 
     told = camera_info(sequence, known="height")
     alone = ContactHeights(spread_scale=spread, error_correlation=correlation, vertical_edges=False)
     sharpened = ContactHeights(spread_scale=spread, error_correlation=correlation, vertical_edges=True)
     count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
-    for index in range(count):
+    indices = range(count)
+    if as_run:
+        reading = Config().camera
+        indices = background_indices(len(sequence), sequence.meta.fps, reading.read_scene_frames,
+                                     reading.read_scene_s)
+    for index in indices:
         image = cv2.cvtColor(sequence.frame(index).rgb, cv2.COLOR_RGB2BGR)
         output = model.run(image)
         heads = alone.heads_camera(output, told, image)
@@ -117,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("data", nargs="+", help="generator datasets (heightpipe synth)")
     parser.add_argument("--model", default="v2", help="v2 model (a name or an ONNX file)")
     parser.add_argument("--frames", type=int, default=0, help="frames per sequence (0 = all)")
+    parser.add_argument("--as-run", action="store_true",
+                        help="the frames a run told only the height reads its camera from (not the first --frames)")
     parser.add_argument("--per-sequence", action="store_true")
     args = parser.parse_args(argv)
 
@@ -143,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
         results = {"heads": [], "heads + lines": []}
         for sequence in list_sequences(folder):
             true_camera = camera_info(sequence)
-            heads, edges = sequence_cameras(sequence, model, correlation, model.info.camera_spread_scale, args.frames)
+            heads, edges = sequence_cameras(sequence, model, correlation, model.info.camera_spread_scale, args.frames,
+                                            args.as_run)
             for label, used in (("heads", heads), ("heads + lines", edges)):
                 results[label].append(camera_error(true_camera, used, true_camera.width, true_camera.height))
             if args.per_sequence:

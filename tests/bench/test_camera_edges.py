@@ -47,3 +47,26 @@ def test_the_table_on_rendered_sequences(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert printed.count("| d, heads |") == 1 and printed.count("| d, heads + lines |") == 1
     assert printed.count(" lines; pitch ") == 2
+    assert main([str(tmp_path / "d"), "--as-run"]) == 0
+    assert capsys.readouterr().out.count("| d, heads + lines |") == 1
+
+
+def test_as_run_reads_the_frames_a_run_told_only_the_height_reads(tmp_path):
+    from bench.camera_edges import sequence_cameras
+    from core.config import Config
+    from pipeline.cli import main as cli_main
+    from stages.capture import background_indices
+    from stages.heightnet_model import HeightNetModel
+    from synth.dataset import list_sequences
+
+    assert cli_main(["synth", "--out", str(tmp_path / "d"), "--sequences", "1", "--frames", "40", "--size", "160x120",
+                     "--seed", "4", "--split", "test", "--workers", "1", "--no-shadows", "--no-post",
+                     "--no-progress"]) == 0
+    sequence = list_sequences(tmp_path / "d")[0]
+    model = HeightNetModel("v2")
+    info = model.info
+    first, _ = sequence_cameras(sequence, model, info.camera_error_correlation, info.camera_spread_scale, 10)
+    read, _ = sequence_cameras(sequence, model, info.camera_error_correlation, info.camera_spread_scale, 10, True)
+    reading = Config().camera
+    wanted = background_indices(len(sequence), sequence.meta.fps, reading.read_scene_frames, reading.read_scene_s)
+    assert first.frames == 10 and read.frames == len(wanted) != 10
