@@ -192,7 +192,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
         "self_calibrated = true",
     ]))
     print(f"heightpipe: camera from {used.frames} frames: pitch {used.pitch_deg:.1f} +- {used.pitch_std_deg:.1f} deg, "
-          f"roll {used.roll_deg:.1f} +- {used.roll_std_deg:.1f} deg, focal {used.focal_px:.0f} px ({lines_note}); "
+          f"roll {used.roll_deg:.1f} +- {used.roll_std_deg:.1f} deg, focal {used.focal_px:.0f} px; {lines_note}; "
           f"run with it: heightpipe run {args.source} --config THIS_FILE", file=sys.stderr)
     return 0
 
