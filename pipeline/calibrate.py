@@ -132,7 +132,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     from stages.heightnet_model import HeightNetModel
     from stages.self_calibration import toml_string
     from stages.sink_common import lines_text
-    from stages.vertical_edges import FIRST_FIT_SAMPLES, SAMPLE_EVERY
+    from stages.vertical_edges import FIRST_FIT_FRAME
 
     if not args.camera_height > 0:
         raise ConfigError(f"--camera-height must be the mounting height in metres, got {args.camera_height}")
@@ -174,10 +174,9 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     if args.picture:   # before the snippet: a picture that cannot be written leaves no half output
         write_scene_picture(args.picture, reader, used, width)
     fov = fov_from_focal(width, used.focal_px)
-    first_fit = SAMPLE_EVERY * (FIRST_FIT_SAMPLES - 1) + 1
     lines_note = (lines_text(used) if used.edges else
-                  f"too few frames for the scene's lines ({first_fit} needed): the heads alone, worth checking"
-                  if used.frames < first_fit else "no straight lines agreed: the heads alone, worth checking")
+                  f"too few frames for the scene's lines ({FIRST_FIT_FRAME} needed): the heads alone, worth checking"
+                  if used.frames < FIRST_FIT_FRAME else "no straight lines agreed: the heads alone, worth checking")
     print("\n".join([
         "[camera]",
         f"height_m = {used.height_m:.2f}            # given",

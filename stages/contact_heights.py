@@ -171,16 +171,12 @@ def given_focal(mean: np.ndarray, std: np.ndarray, correlation: np.ndarray,
     return mean, std, conditioned
 
 
-def read_scene_camera(model, images, camera: CameraInfo) -> HeightCamera | None:
-    """The camera a run told only ``camera.height_m`` ends with over ``images`` (BGR frames):
-    ``model``'s (a v2 ``HeightNetModel``) camera heads sharpened by the scene's straight lines.
-    None without images. What ``heightpipe calibrate --camera-height`` prints as a pose."""
-    return read_scene(model, images, camera)[0]
-
-
 def read_scene(model, images, camera: CameraInfo) -> tuple[HeightCamera | None, ContactHeights]:
-    """``read_scene_camera``'s camera and the reader that read it: its ``samples`` (the scene's
-    median) and ``edge_fit`` (the lines that agreed) are what a picture of the reading shows.
+    """The camera a run told only ``camera.height_m`` ends with over ``images`` (BGR frames):
+    ``model``'s (a v2 ``HeightNetModel``) camera heads sharpened by the scene's straight lines
+    (None without images; what ``heightpipe calibrate --camera-height`` prints as a pose), and
+    the reader that read it: its ``samples`` (the scene's median) and ``edge_fit`` (the lines that
+    agreed) are what a picture of the reading shows.
 
     Frames of a lens with distortion (a calibration file's) are undistorted first: straight lines
     are straight only there, and a run with the camera read measures on undistorted frames.

@@ -40,8 +40,8 @@ length 15 -> 6 %, horizon 4.0 -> 1.5 % of the image height, a 1.70 m pole measur
 camera 16.3 -> 6.2 cm off; on Oxford Town Centre pitch 34.3 -> 20.5 degrees (true 20.0), roll
 0.1 -> 1.3 (1.4), focal length 731 -> 1379 px (1348). Opt-in for a run's v2 heights
 (``[height] vertical_edges``: held-out people 25 -> 18 cm, but Oxford 11.6 -> 24), the way to a
-posed run through ``heightpipe calibrate --camera-height`` (``stages.contact_heights.
-read_scene_camera``).
+posed run through ``heightpipe calibrate --camera-height`` and a run told only the height
+(``stages.contact_heights.read_scene``).
 """
 
 from __future__ import annotations
@@ -63,7 +63,9 @@ SAMPLE_EVERY = 3
 SAMPLES = 9
 """The median of nine frames: a walker or a rain streak is in fewer than half of them."""
 FIRST_FIT_SAMPLES = 5
-"""The first fit waits for five samples (frame 12), so a median exists."""
+"""The first fit waits for five samples (frame 13), so a median exists."""
+FIRST_FIT_FRAME = SAMPLE_EVERY * (FIRST_FIT_SAMPLES - 1) + 1
+"""The frame (counted from 1) of the first fit: fewer frames give the heads alone."""
 REFIT_MAX_FRAMES = 300
 """Fits come at doubling frame counts (as the heads' average settles), at most this far apart."""
 MIN_LENGTH = 0.06
@@ -281,7 +283,8 @@ def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, s
     if square:
         solution = _least_squares(values, whiten, used, families, width, height, solution.x,
                                   _bounds(values, std, families), orthogonal=True)
-    lines = sum(len(group) for group in [used, *(f.segments for f in families)])
+    groups = [used, *(f.segments for f in families)]     # their rows come in this order
+    lines = sum(map(len, groups))
     rows = solution.fun[:lines]
     inliers = np.abs(rows) < 1.0
     vertical = int(inliers[:len(used)].sum())
@@ -292,7 +295,6 @@ def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, s
     scatter = max(1.0, float(np.sqrt(np.sum(rows[inliers] ** 2) / max(count - 2 - len(families), 1))))
     jacobian = np.vstack([solution.jac[:lines][inliers] / scatter, solution.jac[lines:]])
     posterior = np.linalg.pinv(jacobian.T @ jacobian)[:3, :3]
-    groups = [used, *(f.segments for f in families)]     # their rows come in this order
     ends = np.cumsum([len(group) for group in groups])
     agreeing = [group[inliers[end - len(group):end]] for group, end in zip(groups, ends)]
     return EdgeFit(solution.x[:3], np.sqrt(np.diag(posterior)), count, agreeing[0], tuple(agreeing[1:]), square)
