@@ -247,6 +247,11 @@ class CameraConfig:
     read_scene_live_s: float = 5.0
     """A live stream's camera is read over its first this many seconds instead, which are not
     processed (a stream cannot be read twice; 0 = not read: v2's heads guess it in the run)."""
+    calibrate_frames: int = 300
+    """``heightpipe calibrate --camera-height`` on a file or folder longer than this reads this
+    many frames spread over all of it, not every frame (an hour of video is 90,000 network
+    passes, ~45 minutes on two cores, for a camera that a few hundred frames read as well); 0 =
+    every frame. ``--max-frames`` or ``--stride`` read from the start as asked instead."""
 
 
 @dataclass

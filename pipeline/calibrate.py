@@ -18,8 +18,8 @@ it prints makes the next run a posed one (HeightNet v1, moving objects, the geom
 height, on Oxford Town Centre 11.4 against 11.6 (docs/results.md, 2026-12-04 tenth session and
 2026-12-05). A run told only the
 height now reads its camera this way by itself (``pipeline/scene_camera.py``, from its first
-frames or a stream's first seconds); this command reads one once, from a whole recording or a
-stream's first minutes, to keep.
+frames or a stream's first seconds); this command reads one once to keep, from a recording's
+frames spread over all of it (``[camera] calibrate_frames``, 300) or a stream's first minutes.
 """
 
 from __future__ import annotations
@@ -152,12 +152,14 @@ def scene_camera(args: argparse.Namespace, config) -> int:
         raise
     camera = dataclasses.replace(lens, R=None, t=None, height_m=float(args.camera_height), source="camera-height",
                                  pose_from="")
-    progress = tqdm(total=source.stats.expected, unit="frame", disable=args.no_progress or not config.output.progress,
+    spread = spread_count(config, source.stats.expected)
+    progress = tqdm(total=spread or source.stats.expected, unit="frame",
+                    disable=args.no_progress or not config.output.progress,
                     desc="reading the scene", dynamic_ncols=True, file=sys.stderr)
 
     def images():
-        for frame in source.frames():
-            yield frame.image
+        for image in (source.spread_sample(spread) if spread else (frame.image for frame in source.frames())):
+            yield image
             progress.update(1)
 
     used = None
@@ -190,10 +192,21 @@ def scene_camera(args: argparse.Namespace, config) -> int:
            f"focal_std_pct = {used.focal_std_pct:.1f}"]),
         "self_calibrated = true",
     ]))
-    print(f"heightpipe: camera from {used.frames} frames: pitch {used.pitch_deg:.1f} +- {used.pitch_std_deg:.1f} deg, "
+    read = f"{used.frames} frames spread over its {source.stats.expected}" if spread else f"{used.frames} frames"
+    print(f"heightpipe: camera from {read}: pitch {used.pitch_deg:.1f} +- {used.pitch_std_deg:.1f} deg, "
           f"roll {used.roll_deg:.1f} +- {used.roll_std_deg:.1f} deg, focal {used.focal_px:.0f} px; {lines_note}; "
           f"run with it: heightpipe run {args.source} --config THIS_FILE", file=sys.stderr)
     return 0
+
+
+def spread_count(config, total: int | None) -> int:
+    """How many frames ``--camera-height`` reads spread over a recording of ``total`` frames
+    (``[camera] calibrate_frames``), or 0 to read every frame from the start: a recording no longer
+    than that, one of unknown length (a stream), or ``--max-frames`` / ``--stride`` given."""
+    count = config.camera.calibrate_frames
+    if count <= 0 or not total or total <= count or config.capture.max_frames or config.capture.stride > 1:
+        return 0
+    return count
 
 
 def write_scene_picture(path: str, reader, used, frame_width: int) -> None:

@@ -190,12 +190,34 @@ class FrameSource:
         Only sources that can be read twice (files, image folders) have one; a live stream
         returns none and its background model starts from its first frames.
         """
-        fitted = (self.fit_to_size(_ensure_bgr(image)) for image in self._background_images(count, span_s))
-        return [image for image in fitted if image is not None]
+        total = self.stats.expected or 0
+        if count <= 0 or total <= 0:
+            return []
+        return list(self._look_ahead(background_indices(total, self.fps or 25.0, count, span_s)))
 
-    def _background_images(self, count: int, span_s: float) -> list[np.ndarray]:
-        """The look-ahead frames as decoded (sources that can be read twice override this)."""
-        return []
+    def spread_sample(self, count: int) -> Iterator[np.ndarray]:
+        """Up to ``count`` frames spread evenly over the whole source, first and last included, at
+        the run's frame size, one at a time (a long recording's frames are not held at once); none
+        from a source that cannot be read twice or does not say how long it is.
+
+        Why: reading a camera once to keep (``heightpipe calibrate --camera-height``) needs a few
+        hundred frames of its scene, not every frame of an archive; spread over it, they also
+        see the scene under more of its light and traffic than its first minutes."""
+        total = self.stats.expected or 0
+        if count > 0 and total > 0:
+            yield from self._look_ahead(evenly_spaced(total, count))
+
+    def _look_ahead(self, indices: list[int]) -> Iterator[np.ndarray]:
+        """The frames at ``indices`` (ascending), read by a second reader and fitted to the run's
+        size; those that fail to decode or are of another aspect ratio left out."""
+        for image in self._images_at(indices):
+            fitted = self.fit_to_size(_ensure_bgr(image))
+            if fitted is not None:
+                yield fitted
+
+    def _images_at(self, indices: list[int]) -> Iterator[np.ndarray]:
+        """The frames at ``indices`` as decoded (sources that can be read twice override this)."""
+        return iter(())
 
     def close(self) -> None:
         pass
@@ -294,13 +316,11 @@ class VideoFileSource(FrameSource):
                 return
             yield index, 0.0, FAILED
 
-    def _background_images(self, count: int, span_s: float) -> list[np.ndarray]:
-        total = self.stats.expected or 0
-        if count <= 0 or total <= 0:
-            return []
-        wanted = set(background_indices(total, self.fps or 25.0, count, span_s))
+    def _images_at(self, indices: list[int]) -> Iterator[np.ndarray]:
+        if not indices:
+            return
+        wanted = set(indices)
         capture = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)  # a second reader: the run's is untouched
-        images = []
         try:
             for index in range(max(wanted) + 1):
                 if not capture.grab():
@@ -308,10 +328,9 @@ class VideoFileSource(FrameSource):
                 if index in wanted:
                     ok, image = capture.retrieve()
                     if ok and image is not None:
-                        images.append(image)
+                        yield image
         finally:
             capture.release()
-        return images
 
     def close(self) -> None:
         self.capture.release()
@@ -339,10 +358,11 @@ class ImageFolderSource(FrameSource):
             image = cv2.imread(str(path), cv2.IMREAD_COLOR)
             yield index, index / self.fps, FAILED if image is None else image
 
-    def _background_images(self, count: int, span_s: float) -> list[np.ndarray]:
-        images = [cv2.imread(str(self.paths[i]), cv2.IMREAD_COLOR)
-                  for i in background_indices(len(self.paths), self.fps, count, span_s)]
-        return [image for image in images if image is not None]
+    def _images_at(self, indices: list[int]) -> Iterator[np.ndarray]:
+        for index in indices:
+            image = cv2.imread(str(self.paths[index]), cv2.IMREAD_COLOR)
+            if image is not None:
+                yield image
 
 
 Opener = Callable[[str], cv2.VideoCapture]

@@ -32,7 +32,7 @@ import numpy as np
 from core.config import CaptureConfig
 from core.errors import SourceError
 from core.packets import Frame
-from stages.capture import FrameSource, background_indices
+from stages.capture import FrameSource
 
 
 
@@ -214,22 +214,19 @@ class PyAVFileSource(FrameSource):
                         frame.frame.image = av_frame.to_ndarray(format="bgr24")
                     yield frame.frame
 
-    def _background_images(self, count: int, span_s: float) -> list[np.ndarray]:
-        total = self.stats.expected or 0
-        if count <= 0 or total <= 0:
-            return []
-        wanted = set(background_indices(total, self.fps or 25.0, count, span_s))
+    def _images_at(self, indices: list[int]) -> Iterator[np.ndarray]:
+        if not indices:
+            return
+        wanted = set(indices)
         container, stream = self._open_video()  # a second reader: the run's is untouched
-        images = []
         try:
             for frame in self._decode(container, stream, keep=wanted.__contains__, count=False):
                 if frame.index > max(wanted):
                     break
                 if frame.index in wanted and not frame.damage:
-                    images.append(frame.image)
+                    yield frame.image
         finally:
             container.close()
-        return images
 
     def keep_alive(self, resource) -> None:
         """Close ``resource`` (e.g. a temporary file the container reads) with this source."""

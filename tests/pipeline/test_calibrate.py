@@ -40,6 +40,32 @@ def test_readme_calibration_example_loads():
     assert camera.height_m == pytest.approx(4.5) and camera.dist is not None
 
 
+@pytest.mark.parametrize("calibrate_frames, total, max_frames, stride, spread", [
+    (300, 90_000, 0, 1, 300),      # an hour of video: 300 frames over all of it
+    (300, 300, 0, 1, 0),           # no longer than that: every frame, from the start
+    (300, None, 0, 1, 0),          # a stream (no length): from the start
+    (300, 90_000, 500, 1, 0),      # --max-frames: from the start, as asked
+    (300, 90_000, 0, 5, 0),        # --stride: likewise
+    (0, 90_000, 0, 1, 0),          # calibrate_frames = 0: every frame
+])
+def test_calibrate_reads_a_long_recording_spread_over_it(calibrate_frames, total, max_frames, stride, spread):
+    from core.config import Config
+    from pipeline.calibrate import spread_count
+
+    config = Config()
+    config.camera.calibrate_frames = calibrate_frames
+    config.capture.max_frames, config.capture.stride = max_frames, stride
+    assert spread_count(config, total) == spread
+
+
+def test_calibrate_on_a_longer_clip_says_it_read_frames_spread_over_it(box_video, capsys):
+    from pipeline.cli import main
+
+    assert main(["calibrate", str(box_video), "--camera-height", "5", "--no-progress",
+                 "--set", "camera.calibrate_frames=20"]) == 0
+    assert "camera from 20 frames spread over its 30" in capsys.readouterr().err
+
+
 def test_told_the_height_calibrate_reads_the_camera_from_the_scene(box_video, capsys):
     """`calibrate --camera-height`: the v2 heads (and any straight lines) give a whole pose as a
     [camera] snippet a run takes as calibrated, no people needed."""

@@ -37,6 +37,28 @@ def test_background_sample_reads_ahead_without_disturbing_the_run(box_video):
     assert source.background_sample(0, span_s=2.0) == []
 
 
+def test_spread_sample_reads_frames_over_the_whole_clip_one_at_a_time(box_video):
+    """``heightpipe calibrate --camera-height`` on a long recording: a few frames from all of it."""
+    source = open_source(str(box_video), CaptureConfig())
+    sample = source.spread_sample(4)
+    assert not isinstance(sample, list), "a generator: a long recording's frames are not held at once"
+    reference = [f.image for f in open_source(str(box_video), CaptureConfig()).frames()]
+    images = list(sample)
+    assert len(images) == 4
+    for image, index in zip(images, [0, 10, 19, 29]):             # evenly_spaced(30, 4): first and last
+        assert np.abs(image.astype(int) - reference[index]).mean() < 1.0
+    assert len(list(source.frames())) == 30                      # the run's own reader is untouched
+    assert list(source.spread_sample(0)) == []
+
+
+def test_spread_sample_of_a_folder_is_fitted_to_the_run_size(tmp_path):
+    for i in range(6):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((96, 128, 3), 40 * i, np.uint8))
+    images = list(open_source(str(tmp_path), CaptureConfig(max_width=64)).spread_sample(3))
+    assert [image.shape for image in images] == [(48, 64, 3)] * 3
+    assert [int(image[0, 0, 0]) for image in images] == [0, 80, 200]   # frames 0, 2 and 5
+
+
 def test_evenly_spaced():
     assert evenly_spaced(20, 5) == [0, 5, 10, 14, 19]
     assert evenly_spaced(3, 10) == [0, 1, 2]
