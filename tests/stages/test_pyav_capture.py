@@ -53,6 +53,18 @@ def test_background_sample_skips_nothing_of_the_run():
     assert len(list(source.frames())) == 180
 
 
+def test_spread_sample_reads_frames_from_all_of_the_file():
+    import numpy as np
+
+    from stages.capture import evenly_spaced
+
+    clean = {f.index: f.image for f in open_source(str(SAMPLE), CaptureConfig(backend="opencv")).frames()}
+    images = list(open_source(str(SAMPLE), CaptureConfig()).spread_sample(4))
+    assert len(images) == 4
+    for image, index in zip(images, evenly_spaced(180, 4)):          # 0, 60, 119, 179
+        assert np.abs(image.astype(int) - clean[index]).mean() < 1.0
+
+
 def test_mp4_cut_before_its_index_is_a_one_line_error_that_says_what_to_do(tmp_path):
     cut = tmp_path / "cut.mp4"
     cut.write_bytes(truncate(SAMPLE.read_bytes(), 0.9))
