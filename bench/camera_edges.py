@@ -14,7 +14,7 @@ the network's offsets or boxes). Also: the share of sequences the lines were use
 often the truth lies within the reported ±1 std (68 % if honest). One table of medians per
 dataset; ``--per-sequence`` prints each sequence too. ``--as-run`` reads the frames a file run
 told only the height reads before its first frame (``[camera] read_scene_frames`` spread over
-``read_scene_s``: 30 of a 60-frame sequence at 10 frames/s) instead of the first ``--frames``.
+``read_scene_s``: all 60 frames of a generator sequence at 10 frames/s) instead of the first ``--frames``.
 """
 
 from __future__ import annotations

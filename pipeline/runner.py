@@ -216,20 +216,27 @@ FrameCallback = Callable[[int, "int | None", float], None]
 """on_frame(frames processed, frames expected or None, elapsed seconds)."""
 
 
-def _scene_images(told: Config, source: FrameSource, frames: Iterator, background: list) -> list:
-    """The frames a run told only the camera height reads its camera from: a file's spread over
-    its first ``read_scene_s`` (the background's, when they are the same frames); a live stream's
-    first ``read_scene_live_s`` seconds, taken from ``frames`` (they are not processed: the
-    stream's frames cannot be read twice, and the run must not fall behind them)."""
-    count, span = told.camera.read_scene_frames, told.camera.read_scene_s
-    if isinstance(source, StreamSource):
-        images, taken = opening_images(frames, count, told.camera.read_scene_live_s)
-        if taken:
-            source.stats.notes.append(f"the first {taken} frames ({told.camera.read_scene_live_s:g} s) read the "
-                                      "camera and were not processed")
-        return images
-    same = (count, span) == (told.objects.background_prime_frames, told.objects.background_prime_s)
-    return background if same else source.background_sample(count, span)
+def _opening_frames(config: Config, told: Config, source: FrameSource) -> tuple[list, list]:
+    """The frames the background model is primed with and, for a file run told only the camera
+    height, those it reads its camera from (spread over its first ``read_scene_s``), in one
+    look-ahead pass over the opening seconds."""
+    scene = (told.camera.read_scene_frames, told.camera.read_scene_s)
+    if not reads_scene(told) or isinstance(source, StreamSource):
+        scene = (0, 0.0)
+    background, images = source.opening_samples(
+        (config.objects.background_prime_frames, config.objects.background_prime_s), scene)
+    return background, images
+
+
+def _stream_scene_images(told: Config, source: StreamSource, frames: Iterator) -> list:
+    """A live stream's first ``read_scene_live_s`` seconds, taken from ``frames``, to read its
+    camera from (they are not processed: the stream's frames cannot be read twice, and the run
+    must not fall behind them)."""
+    images, taken = opening_images(frames, told.camera.read_scene_frames, told.camera.read_scene_live_s)
+    if taken:
+        source.stats.notes.append(f"the first {taken} frames ({told.camera.read_scene_live_s:g} s) read the "
+                                  "camera and were not processed")
+    return images
 
 
 def _write_picture(path: Path, picture) -> Path | None:
@@ -278,11 +285,11 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     width, height = source.size
     try:
         frames = source.frames()
-        background = source.background_sample(config.objects.background_prime_frames,
-                                               config.objects.background_prime_s)
+        background, images = _opening_frames(config, told, source)
         reading = None
         if reads_scene(told):
-            images = _scene_images(told, source, frames, background)
+            if isinstance(source, StreamSource):
+                images = _stream_scene_images(told, source, frames)
             config, model, reading = _posed_from_scene(told, config, model, images)
         outputs = output_paths(prefix, config)
         summary.outputs = outputs

@@ -190,10 +190,17 @@ class FrameSource:
         Only sources that can be read twice (files, image folders) have one; a live stream
         returns none and its background model starts from its first frames.
         """
+        return self.opening_samples((count, span_s))[0]
+
+    def opening_samples(self, *requests: tuple[int, float]) -> list[list[np.ndarray]]:
+        """``background_sample(count, span_s)`` for each (count, span_s) of ``requests``, read in one
+        pass: a run told only the camera height reads its camera from more early frames than its
+        background model is primed with, and each pass decodes the video's opening seconds again."""
         total = self.stats.expected or 0
-        if count <= 0 or total <= 0:
-            return []
-        return list(self._look_ahead(background_indices(total, self.fps or 25.0, count, span_s)))
+        wanted = [background_indices(total, self.fps or 25.0, count, span_s) if count > 0 and total > 0 else []
+                  for count, span_s in requests]
+        read = dict(self._look_ahead(sorted(set().union(*wanted))))
+        return [[read[index] for index in indices if index in read] for indices in wanted]
 
     def spread_sample(self, count: int) -> Iterator[np.ndarray]:
         """Up to ``count`` frames spread evenly over the whole source, first and last included, at
@@ -205,18 +212,19 @@ class FrameSource:
         see the scene under more of its light and traffic than its first minutes."""
         total = self.stats.expected or 0
         if count > 0 and total > 0:
-            yield from self._look_ahead(evenly_spaced(total, count))
+            for _, image in self._look_ahead(evenly_spaced(total, count)):
+                yield image
 
-    def _look_ahead(self, indices: list[int]) -> Iterator[np.ndarray]:
-        """The frames at ``indices`` (ascending), read by a second reader and fitted to the run's
-        size; those that fail to decode or are of another aspect ratio left out."""
-        for image in self._images_at(indices):
+    def _look_ahead(self, indices: list[int]) -> Iterator[tuple[int, np.ndarray]]:
+        """(index, frame) at ``indices`` (ascending), read by a second reader and fitted to the
+        run's size; those that fail to decode or are of another aspect ratio left out."""
+        for index, image in self._images_at(indices):
             fitted = self.fit_to_size(_ensure_bgr(image))
             if fitted is not None:
-                yield fitted
+                yield index, fitted
 
-    def _images_at(self, indices: list[int]) -> Iterator[np.ndarray]:
-        """The frames at ``indices`` as decoded (sources that can be read twice override this)."""
+    def _images_at(self, indices: list[int]) -> Iterator[tuple[int, np.ndarray]]:
+        """(index, frame as decoded) at ``indices`` (sources that can be read twice override this)."""
         return iter(())
 
     def close(self) -> None:
@@ -316,7 +324,7 @@ class VideoFileSource(FrameSource):
                 return
             yield index, 0.0, FAILED
 
-    def _images_at(self, indices: list[int]) -> Iterator[np.ndarray]:
+    def _images_at(self, indices: list[int]) -> Iterator[tuple[int, np.ndarray]]:
         if not indices:
             return
         wanted = set(indices)
@@ -328,7 +336,7 @@ class VideoFileSource(FrameSource):
                 if index in wanted:
                     ok, image = capture.retrieve()
                     if ok and image is not None:
-                        yield image
+                        yield index, image
         finally:
             capture.release()
 
@@ -358,11 +366,11 @@ class ImageFolderSource(FrameSource):
             image = cv2.imread(str(path), cv2.IMREAD_COLOR)
             yield index, index / self.fps, FAILED if image is None else image
 
-    def _images_at(self, indices: list[int]) -> Iterator[np.ndarray]:
+    def _images_at(self, indices: list[int]) -> Iterator[tuple[int, np.ndarray]]:
         for index in indices:
             image = cv2.imread(str(self.paths[index]), cv2.IMREAD_COLOR)
             if image is not None:
-                yield image
+                yield index, image
 
 
 Opener = Callable[[str], cv2.VideoCapture]

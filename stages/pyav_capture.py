@@ -214,7 +214,7 @@ class PyAVFileSource(FrameSource):
                         frame.frame.image = av_frame.to_ndarray(format="bgr24")
                     yield frame.frame
 
-    def _images_at(self, indices: list[int]) -> Iterator[np.ndarray]:
+    def _images_at(self, indices: list[int]) -> Iterator[tuple[int, np.ndarray]]:
         if not indices:
             return
         wanted = set(indices)
@@ -224,7 +224,7 @@ class PyAVFileSource(FrameSource):
                 if frame.index > max(wanted):
                     break
                 if frame.index in wanted and not frame.damage:
-                    yield frame.image
+                    yield frame.index, frame.image
         finally:
             container.close()
 

@@ -37,6 +37,21 @@ def test_background_sample_reads_ahead_without_disturbing_the_run(box_video):
     assert source.background_sample(0, span_s=2.0) == []
 
 
+def test_opening_samples_read_two_spreads_in_one_pass(box_video, monkeypatch):
+    """A run told only the camera height reads its camera from more early frames than its
+    background is primed with: both come from one look-ahead pass, each as if read alone."""
+    source = open_source(str(box_video), CaptureConfig())
+    alone = [source.background_sample(3, span_s=2.0), source.background_sample(6, span_s=3.0)]
+    passes = []
+    reader = source._images_at
+    monkeypatch.setattr(source, "_images_at", lambda indices: passes.append(indices) or reader(indices))
+    together = source.opening_samples((3, 2.0), (6, 3.0), (0, 1.0))
+    assert len(passes) == 1
+    assert [len(group) for group in together] == [3, 6, 0]
+    for mine, theirs in zip(together, alone):
+        assert all(np.array_equal(a, b) for a, b in zip(mine, theirs))
+
+
 def test_spread_sample_reads_frames_over_the_whole_clip_one_at_a_time(box_video):
     """``heightpipe calibrate --camera-height`` on a long recording: a few frames from all of it."""
     source = open_source(str(box_video), CaptureConfig())
