@@ -241,9 +241,9 @@ class CameraConfig:
     """Told only height_m, a run over a file first reads pitch, roll and focal length from this
     many frames of its first read_scene_s seconds (v2's camera heads and the scene's straight
     lines, as ``heightpipe calibrate --camera-height`` does) and then runs posed (0 = off: v2's
-    heads guess the camera in the run). 60 rather than 30 (2026-12-05): the heads' average and
-    the lines' median settle better (1.70 m pole 5.5 -> 3.8 cm on 40 held-out generator
-    cameras; Oxford Town Centre's people 12.3 -> 8.6 cm) for ~0.7 s more at the start."""
+    heads guess the camera in the run). 60 rather than 30 (2026-12-05): on four of five held-out
+    sets and Oxford Town Centre the people came out better (Oxford 12.3 -> 8.6 cm; one set of
+    longer clips 12.2 -> 14.5), for ~0.7 s more at the start (docs/results.md)."""
     read_scene_s: float = 30.0
     """The span of the video's start those frames are spread over."""
     read_scene_live_s: float = 5.0
