@@ -89,7 +89,7 @@ def sequence_cameras(sequence, model, correlation, spread, max_frames: int = 0, 
     (its first ``max_frames``, or with ``as_run`` the frames a run told only the height reads)."""
     import cv2
 
-    from core.config import Config
+    from core.config import load_config
     from pipeline.eval_sequences import camera_info
     from stages.capture import background_indices
     from stages.contact_heights import ContactHeights
@@ -100,7 +100,7 @@ def sequence_cameras(sequence, model, correlation, spread, max_frames: int = 0, 
     count = len(sequence) if max_frames <= 0 else min(max_frames, len(sequence))
     indices = range(count)
     if as_run:
-        reading = Config().camera
+        reading = load_config(None).camera    # config.toml's, as the run reads it
         indices = background_indices(len(sequence), sequence.meta.fps, reading.read_scene_frames,
                                      reading.read_scene_s)
     for index in indices:

@@ -270,8 +270,7 @@ def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, s
         # Families searched again around the fitted horizon: heads far off (200 px on one
         # held-out camera) put a second family outside the band drawn around theirs.
         found = ground_families(ground_segments, solution.x[:3], covariance, width, height)
-        if (len(found), sum(map(len, (f.segments for f in found)))) > (
-                len(families), sum(map(len, (f.segments for f in families)))):
+        if _support(found) > _support(families):
             families = found
             solution, used = _gated_fit(values, std, whiten, segments, families, width, height, solution.x[:3])
     if solution is None:
@@ -298,6 +297,11 @@ def fit_to_edges(values: np.ndarray, std: np.ndarray, correlation: np.ndarray, s
     ends = np.cumsum([len(group) for group in groups])
     agreeing = [group[inliers[end - len(group):end]] for group, end in zip(groups, ends)]
     return EdgeFit(solution.x[:3], np.sqrt(np.diag(posterior)), count, agreeing[0], tuple(agreeing[1:]), square)
+
+
+def _support(families: list[Family]) -> tuple[int, int]:
+    """How much a set of families says: how many, then how many segments in all."""
+    return len(families), sum(len(f.segments) for f in families)
 
 
 def _gated_fit(values: np.ndarray, std: np.ndarray, whiten: np.ndarray, segments: np.ndarray,
