@@ -19,7 +19,8 @@ of the tracks' head-top and foot points (top and bottom centre of the track box)
 labelled points, in the frame the run worked in (undistorted where it undistorted).
 
 And how well the labelled people are tracked (:func:`identity_scores`): the share of labelled
-person-frames a track box covers (one-to-one, IoU >= 0.5 with the body box), the identity recall
+person-frames a track box covers (one-to-one, IoU >= 0.5 with the body box as far as it lies in
+the frame: the labels' boxes of people at its edges go on outside it), the identity recall
 IDR (the share covered by the one track id assigned to each person, as IDF1 assigns them), ID
 switches, and the people covered in at least 80 % of their frames. Recall only: some people at
 the frame's edges are not labelled, so a track without a label is not a false positive.
@@ -104,7 +105,9 @@ def load_labels(undistort: bool) -> dict[int, list[LabelledPerson]]:
                                [x1, y1], [x2, y1], [x1, y2], [x2, y2]])
             if undistort:
                 points = undistort_pixels(camera, points)
-            corners = points[2:]
+            # The body box as far as it is in view: a person half out of the frame is covered by
+            # a track on the half that is in it (the labelled box goes on past the frame's edge).
+            corners = np.clip(points[2:], 0.0, [camera.width, camera.height])
             box = np.array([*corners.min(0), *(corners.max(0) - corners.min(0))])
             frames.setdefault(int(row["frame"]), []).append(LabelledPerson(
                 int(row["person"]), box, points[0], points[1], row["foot_inside_image"] == "1",

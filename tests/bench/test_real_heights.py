@@ -1,8 +1,9 @@
 """The Oxford bench's tracking scores on hand-made labels and tracks."""
 
 import numpy as np
+import pytest
 
-from bench.real_heights import LabelledPerson, identity_scores
+from bench.real_heights import LABELS, LabelledPerson, identity_scores, load_labels
 
 
 def person(pid: int, x: float) -> LabelledPerson:
@@ -33,3 +34,15 @@ def test_a_box_off_the_person_does_not_count():
     assert far.covered == 0.0 and far.id_recall == 0.0 and far.mostly_tracked == 0
     none = identity_scores(labels, {})
     assert none.covered == 0.0 and none.id_switches == 0
+
+
+@pytest.mark.skipif(not LABELS.is_file(), reason="needs ../shared/real/oxford_towncentre")
+@pytest.mark.parametrize("undistort", [False, True])
+def test_labelled_boxes_end_at_the_frame_edge(undistort):
+    """A walker half out of view is scored against the half a track can box."""
+    people = [p for frame in load_labels(undistort).values() for p in frame]
+    boxes = np.array([p.box for p in people])
+    assert (boxes[:, :2] >= 0).all() and (boxes[:, 0] + boxes[:, 2] <= 1920).all()
+    assert (boxes[:, 1] + boxes[:, 3] <= 1080).all() and (boxes[:, 2:] > 0).all()
+    # Some feet are labelled below the frame's bottom: their boxes end at it.
+    assert any(p.foot[1] > 1080 and p.box[1] + p.box[3] == 1080 for p in people)
