@@ -153,7 +153,7 @@ class ObjectsConfig:
     480, not 320 (docs/results.md, 2026-12-05 fourteenth session): at 320 a walker of a 640-pixel
     or wider frame is 6-8 work pixels wide, and the 3 pixels the foreground is grown by on each side
     outweigh him, so his blob failed the foreground-share test (Oxford: covered 0.57 -> 0.65;
-    640x480 generator sets HOTA up 0.01-0.05); it costs ~5 ms a frame at 640x360."""
+    640x480 generator sets HOTA up 0.01-0.05); it costs ~4 ms a frame at 640x360."""
     background_prime_frames: int = 30
     """Frames sampled from the start of a file whose median seeds the background model (0 = off)."""
     background_prime_s: float = 30.0
