@@ -183,6 +183,10 @@ class TrackingConfig:
     """Detections in a row before a track is confirmed (reported), at least ..."""
     confirm_s: float = 0.2
     """... and at least this long in source time (10 fps: 2 detections, 25 fps: 5)."""
+    backfill: bool = True
+    """Once a track is confirmed, its tentative frames are reported too (they held its
+    detections; at 25 fps the first 4 frames of every track were missing). Outputs wait for
+    the frames whose tentative tracks are not yet settled: a live source's by up to confirm_s."""
     max_misses: int = 30
     """Frames without a detection before a track is deleted, at least ..."""
     max_miss_s: float = 4.0

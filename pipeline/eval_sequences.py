@@ -18,6 +18,7 @@ import numpy as np
 
 from core.config import Config, model_for_camera
 from core.packets import NETWORK
+from pipeline.track_backfill import backfilled
 from synth.dataset import COARSE_CLASS, PARKED_VEHICLE_ID
 
 # The classes evaluation scores: the generator's (pedestrian, car, ...) and the pipeline's
@@ -241,7 +242,7 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
     start = time.perf_counter()
     try:
         with contextlib.closing(sequence_packets(sequence, chain, max_frames, camera)) as packets:
-            for truth_frame, packet in packets:
+            for truth_frame, packet in backfilled(packets, lambda pair: pair[1], config.tracking.backfill):
                 if sink is not None:
                     sink.write(packet)
                 run.frames.append(FrameRecord(

@@ -13,16 +13,17 @@ from __future__ import annotations
 import signal
 import time
 from collections import defaultdict
-from contextlib import closing, contextmanager
+from contextlib import closing, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
 from core.config import Config
-from core.packets import CameraInfo, HeightCamera
+from core.packets import CameraInfo, FramePacket, HeightCamera
 from core.stage import Sink
 from pipeline.scene_camera import model_for, opening_images, pose_from_scene, reads_scene
 from pipeline.stage_chain import build_stage_chain, close_all, import_stages, load_height_model
+from pipeline.track_backfill import TrackBackfill
 from stages.capture import CaptureStats, FrameSource, StreamSource, open_source
 from stages.objects_table import ObjectTable
 
@@ -317,29 +318,41 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     else:
         packets = chain.run(frames, camera)
     summary.overlapped = overlapped is not None
+    backfill = TrackBackfill() if config.tracking.backfill else None
     start = time.perf_counter()
+
+    def write(packet: FramePacket) -> None:
+        summary.objects.add(packet)
+        for name, sink in sinks:
+            t0 = time.perf_counter()
+            sink.write(packet)
+            packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
+        summary.frames += 1
+        for name, ms in packet.timings_ms.items():
+            summary.stage_ms[name] += ms
+        summary.events += len(packet.events)
+        summary.height_camera = packet.height_camera or summary.height_camera
+
     try:
         with _StopSignals().installed() as stop_signals, closing(packets):
             for packet in packets:
                 with stop_signals.writing():
-                    summary.objects.add(packet)
-                    for name, sink in sinks:
-                        t0 = time.perf_counter()
-                        sink.write(packet)
-                        packet.timings_ms[name] = (time.perf_counter() - t0) * 1000.0
-                    summary.frames += 1
-                    for name, ms in packet.timings_ms.items():
-                        summary.stage_ms[name] += ms
-                    summary.events += len(packet.events)
-                    summary.height_camera = packet.height_camera or summary.height_camera
+                    for ready in backfill.push(packet) if backfill else [packet]:
+                        write(ready)
                 progress.update(1)
                 progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
                 if on_frame is not None:
                     on_frame(summary.frames, total, time.perf_counter() - start)
-    except KeyboardInterrupt:
-        summary.interrupted = "SIGINT"
-    except StopRequested as stop:
-        summary.interrupted = str(stop)
+            with stop_signals.writing():
+                for ready in backfill.drain() if backfill else []:
+                    write(ready)
+    except (KeyboardInterrupt, StopRequested) as stop:
+        summary.interrupted = str(stop) if isinstance(stop, StopRequested) else "SIGINT"
+        # The frames held for backfilling were processed: they go out too (a second Ctrl-C
+        # while they are written leaves them out, not a traceback).
+        with suppress(KeyboardInterrupt):
+            for ready in backfill.drain() if backfill else []:
+                write(ready)
     finally:
         summary.wall_s = time.perf_counter() - start
         if overlapped is not None:

@@ -55,6 +55,23 @@ def test_run_writes_rrd_mcap_and_csv(tmp_path, box_video, model_flag):
     assert len({row[2] for row in rows[1:]}) <= 2
 
 
+def test_a_confirmed_track_is_reported_from_its_first_detection(tmp_path, box_video, model_flag):
+    """The frames a track was tentative in hold its detections: once confirmed, they are written too."""
+    rows = {}
+    for backfill in ("true", "false"):
+        result = heightpipe("run", box_video, "--out", tmp_path / backfill, "--no-progress", "--rerun", "off",
+                            "--set", f"tracking.backfill={backfill}", *model_flag)
+        assert result.returncode == 0, result.stderr
+        rows[backfill] = list(csv.reader(open(tmp_path / f"{backfill}.tracks.csv")))[1:]
+    assert rows["false"], "the moving box becomes a track"
+    added = [row for row in rows["true"] if row not in rows["false"]]
+    assert {row[2] for row in added} == {row[2] for row in rows["false"]}, "every track gains its tentative frame"
+    for row in added:   # 10 frames/s: two detections confirm, so each track gains its first frame
+        track_frames = [int(r[0]) for r in rows["false"] if r[2] == row[2]]
+        assert int(row[0]) == min(track_frames) - 1
+    assert len(rows["true"]) == len(rows["false"]) + len(added)
+
+
 def test_rule_events_reach_every_output_and_the_summary_is_the_objects_table(tmp_path, box_video, tiny_model):
     import json
 
