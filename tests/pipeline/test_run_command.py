@@ -471,12 +471,13 @@ def test_network_objects_run_end_to_end(tmp_path, box_video, detector_model):
         reader = csv.DictReader(f)
         rows = list(reader)
     assert reader.fieldnames == CSV_HEADER
-    # Two objects that never move, found in every frame: confirmed tracks of the network's classes,
-    # from the second frame on. The moving white box has no network box, but is a third of the
-    # frame tall: a big motion blob, an object of its own with its class from its shape.
+    # Two objects that never move, found in every frame: confirmed tracks of the network's classes
+    # on the second frame, reported from the first (``tracking.backfill``). The moving white box has
+    # no network box, but is a third of the frame tall: a big motion blob, an object of its own with
+    # its class from its shape.
     classes = {row["track_id"]: row["class"] for row in rows}
     assert sorted(classes.values()) == ["other", "person", "vehicle"]
-    assert sum(row["class"] in ("person", "vehicle") for row in rows) == 2 * 5
+    assert sum(row["class"] in ("person", "vehicle") for row in rows) == 2 * 6
 
 
 def test_network_objects_need_a_model_with_a_detection_head(box_video, model_flag):
