@@ -318,7 +318,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     else:
         packets = chain.run(frames, camera)
     summary.overlapped = overlapped is not None
-    backfill = TrackBackfill() if config.tracking.backfill else None
+    backfill = TrackBackfill(enabled=config.tracking.backfill)
     start = time.perf_counter()
 
     def write(packet: FramePacket) -> None:
@@ -337,21 +337,21 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         with _StopSignals().installed() as stop_signals, closing(packets):
             for packet in packets:
                 with stop_signals.writing():
-                    for ready in backfill.push(packet) if backfill else [packet]:
+                    for ready in backfill.push(packet):
                         write(ready)
                 progress.update(1)
                 progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
                 if on_frame is not None:
                     on_frame(summary.frames, total, time.perf_counter() - start)
             with stop_signals.writing():
-                for ready in backfill.drain() if backfill else []:
+                for ready in backfill.drain():
                     write(ready)
     except (KeyboardInterrupt, StopRequested) as stop:
         summary.interrupted = str(stop) if isinstance(stop, StopRequested) else "SIGINT"
         # The frames held for backfilling were processed: they go out too (a second Ctrl-C
         # while they are written leaves them out, not a traceback).
         with suppress(KeyboardInterrupt):
-            for ready in backfill.drain() if backfill else []:
+            for ready in backfill.drain():
                 write(ready)
     finally:
         summary.wall_s = time.perf_counter() - start

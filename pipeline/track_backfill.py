@@ -29,14 +29,19 @@ class TrackBackfill(Generic[Item]):
 
     ``push`` returns the items that can go out now, oldest first; ``drain`` returns the rest
     at the end of a run (or when it is stopped: their tentative tracks stay unconfirmed).
+    Not ``enabled`` (``tracking.backfill = false``), every item goes out as it comes.
     """
 
-    def __init__(self, packet_of: Callable[[Item], FramePacket] = lambda item: item, max_held: int = 50):
+    def __init__(self, packet_of: Callable[[Item], FramePacket] = lambda item: item, max_held: int = 50,
+                 enabled: bool = True):
         self.packet_of = packet_of
         self.max_held = max(1, max_held)
+        self.enabled = enabled
         self._held: deque[Item] = deque()
 
     def push(self, item: Item) -> list[Item]:
+        if not self.enabled:
+            return [item]
         newest = self.packet_of(item)
         self._held.append(item)
         confirmed = {t.track_id for t in newest.tracks if t.confirmed}
@@ -65,10 +70,7 @@ def _waits_on(packet: FramePacket, tentative: set[int]) -> bool:
 def backfilled(items: Iterable[Item], packet_of: Callable[[Item], FramePacket] = lambda item: item,
                enabled: bool = True) -> Iterator[Item]:
     """``items`` in order, each once its tentative tracks are settled (all of them at the end)."""
-    if not enabled:
-        yield from items
-        return
-    backfill = TrackBackfill(packet_of)
+    backfill = TrackBackfill(packet_of, enabled=enabled)
     for item in items:
         yield from backfill.push(item)
     yield from backfill.drain()
