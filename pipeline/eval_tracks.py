@@ -17,14 +17,17 @@ the shipped network or, with ``--heights oracle``, from the ground-truth height 
 * Detections before tracking: recall and precision of object extraction's boxes (IoU 0.5), of
   any class and with the class right, per class, box height, camera height, weather and time of
   day, printed after the HOTA/IDF1 table and under "detection" in ``--json``.
+* Against another run (``--against BASE.json``, ``eval_compare``): both runs' height errors over
+  the objects both count, and their scores side by side.
 
 Ground-truth boxes that are mostly hidden (``--min-visibility``) are "don't care": they are
 neither required nor penalised, and a track box on one is dropped (as MOTChallenge does with
 occluded and distractor boxes); so is a box no required object claims that lies mostly on a
 parked vehicle, which the generator draws without a box (KITTI's DontCare areas).
 
-This module is the command; the work is in three: ``eval_sequences`` (running the stages over a
-sequence), ``eval_metrics`` (the scores) and ``eval_reports`` (the printed tables, the picture).
+This module is the command; the work is in four: ``eval_sequences`` (running the stages over a
+sequence), ``eval_metrics`` (the scores), ``eval_reports`` (the printed tables, the picture) and
+``eval_compare`` (two reports side by side).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from pathlib import Path
 
 from core.config import Config
 from core.errors import HeightpipeError
+from pipeline.eval_compare import compare_reports, format_comparison
 from pipeline.eval_metrics import evaluate
 from pipeline.eval_reports import format_misses, format_report, json_default, plot_height_series
 from pipeline.eval_sequences import CAMERA_KNOWN, run_sequence
@@ -66,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also print why required objects were missed (not detected, merged, box off, "
                              "detected but not tracked) per class, size, time of day, weather")
     parser.add_argument("--json", metavar="FILE", help="write the full report as JSON")
+    parser.add_argument("--against", metavar="BASE_JSON",
+                        help="another run's --json report on the same data: heights compared over the objects "
+                             "both runs count, scores side by side")
     parser.add_argument("--plot", metavar="PNG", help="picture of per-track height series (first sequence)")
     parser.add_argument("--record", metavar="RRD", help="rerun recording of the first sequence")
 
@@ -73,6 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace, config: Config) -> int:
     from synth.dataset import list_sequences
 
+    base = _read_base(Path(args.against)) if args.against else None
     root = Path(args.data)
     if not (root / "manifest.json").is_file():
         raise HeightpipeError(f"{root} is not a synthetic dataset (no manifest.json)")
@@ -110,7 +118,23 @@ def main(args: argparse.Namespace, config: Config) -> int:
     print(format_report(report))
     if args.misses:
         print(format_misses(report["misses"]))
+    if base is not None:
+        report["against"] = compare_reports(report, base)
+        print(format_comparison(report["against"], args.against))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(report, indent=2, default=json_default))
     return 0
+
+
+def _read_base(path: Path) -> dict:
+    """The ``--against`` report, read before the sequences run (a wrong path fails at once)."""
+    try:
+        base = json.loads(path.read_text())
+    except OSError as exc:
+        raise HeightpipeError(f"--against: cannot read {path}: {exc.strerror or exc}") from None
+    except json.JSONDecodeError as exc:
+        raise HeightpipeError(f"--against: {path} is not JSON ({exc.msg}, line {exc.lineno})") from None
+    if not isinstance(base, dict) or not {"objects", "mot", "sequences", "min_frames"} <= base.keys():
+        raise HeightpipeError(f"--against: {path} is not an eval-tracks --json report")
+    return base
