@@ -21,6 +21,16 @@ SAME_M = 0.001
 MUST_AGREE = ("sequences", "min_visibility", "min_box_px", "min_frames")
 
 
+def check_comparable(settings: dict, base: dict) -> None:
+    """``HeightpipeError`` unless ``settings`` (a report, or its ``MUST_AGREE`` keys known before the
+    sequences run) and ``base`` were made on the same sequences with the same don't-care and
+    ``--min-frames`` settings: else their objects would not be the same objects."""
+    for key in MUST_AGREE:
+        if settings.get(key) != base.get(key):
+            raise HeightpipeError(f"--against: the base report differs in {key!r} "
+                                  f"({base.get(key)!r} there, {settings.get(key)!r} here): run both the same way")
+
+
 def _counted(report: dict) -> dict[tuple[str, int], dict]:
     """(sequence, object id) -> object, for the objects the report's height table counts."""
     return {(o["sequence"], int(o["object_id"])): o for o in report["objects"]
@@ -40,12 +50,9 @@ def compare_reports(report: dict, base: dict) -> dict:
     """``report`` against ``base`` (both ``eval_metrics.evaluate``'s, as ``--json`` writes them).
 
     Raises ``HeightpipeError`` when they were made on other sequences or with other don't-care or
-    ``--min-frames`` settings (their objects would not be the same objects).
+    ``--min-frames`` settings (``check_comparable``).
     """
-    for key in MUST_AGREE:
-        if report.get(key) != base.get(key):
-            raise HeightpipeError(f"--against: the base report differs in {key!r} "
-                                  f"({base.get(key)!r} there, {report.get(key)!r} here): run both the same way")
+    check_comparable(report, base)
     ours, theirs = _counted(report), _counted(base)
     common = sorted(ours.keys() & theirs.keys())
     rows = {}

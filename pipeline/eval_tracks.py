@@ -40,7 +40,7 @@ from pathlib import Path
 
 from core.config import Config
 from core.errors import HeightpipeError
-from pipeline.eval_compare import compare_reports, format_comparison
+from pipeline.eval_compare import check_comparable, compare_reports, format_comparison
 from pipeline.eval_metrics import evaluate
 from pipeline.eval_reports import format_misses, format_report, json_default, plot_height_series
 from pipeline.eval_sequences import CAMERA_KNOWN, run_sequence
@@ -93,6 +93,9 @@ def main(args: argparse.Namespace, config: Config) -> int:
             raise HeightpipeError(f"no such sequence in {root} ({args.split} split): {', '.join(sorted(missing))}")
     if not sequences:
         raise HeightpipeError(f"no {args.split} sequences in {root}")
+    if base is not None:  # before the sequences run, not after
+        check_comparable({"sequences": [s.name for s in sequences], "min_visibility": args.min_visibility,
+                          "min_box_px": args.min_box_px, "min_frames": args.min_frames}, base)
     if args.plot:
         from core.extras import require
 
