@@ -66,10 +66,10 @@ class HeightConfig:
     metadata (v2 needs the camera: README). "" = the shipped model for what the run is told of its
     camera (``model_for_camera``): v2 with its detection head when told only the camera height, v1
     otherwise."""
-    threads: int = 1
-    """ONNX Runtime intra-op threads. One: on two cores the network's second thread took the core
-    the other stages run on beside it (overlapped run), so the run was slower with it (docs/design.md,
-    Threads and processes)."""
+    threads: int = 0
+    """ONNX Runtime intra-op threads; 0 = by the model: one for v1, whose second thread took the
+    core the other stages run on beside it (the overlapped run was slower with it), two for the
+    slower v2 (docs/design.md, Threads and processes)."""
     input_width: int = 0
     """Network input width in pixels (0 = the width the model was trained at, 320); the height
     keeps the trained aspect. Twice as wide finds objects half as tall (a 640x480 camera's far

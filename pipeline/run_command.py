@@ -141,7 +141,7 @@ def run_side_by_side(sources: list[str], config: Config, prefixes: list[Path]) -
     two cameras on two cores do not fight over four threads.
     """
     config.output.progress = False  # several bars on one terminal would overwrite each other
-    config.height.threads = max(1, config.height.threads // len(sources))
+    config.height.threads = max(1, (config.height.threads or 2) // len(sources))  # 0 (by the model): at most 2
     context = multiprocessing.get_context("spawn")
     processes = [context.Process(target=_camera_process, args=(source, config, prefix),
                                  name=f"heightpipe-run-{prefix.name}")

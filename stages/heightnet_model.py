@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -71,6 +72,13 @@ class HeightNetModelConstants:
     # An input size other than the trained one is rounded to a multiple of this: the v2 trunk
     # halves the image four times (its deepest features are 1/16 of the input).
     size_multiple: int = 16
+    # ONNX Runtime threads where none are asked for (``threads = 0``), at most the cores there are.
+    # The overlapped run's other stages keep a core busy beside the network (~21 ms a frame at
+    # 640x360 on two cores): v1 (~22 ms) ran faster on one thread, which leaves them that core;
+    # v2 (~30 ms on one thread) is the slower of the two and ran faster on two (docs/results.md,
+    # 2026-12-05, sixteenth session).
+    auto_threads_v1: int = 1
+    auto_threads_v2: int = 2
 
 
 CONSTANTS = HeightNetModelConstants()
@@ -230,7 +238,7 @@ class HeightNetModel:
     model_path : str or Path
         "" = the shipped model, "int8" = its INT8 version, "v2" = HeightNet v2, else an exported file.
     threads : int
-        ONNX Runtime intra-op threads.
+        ONNX Runtime intra-op threads; 0 = by the model (``CONSTANTS.auto_threads_v1`` / ``_v2``).
     detection_min_score : float
         A detection head's peaks weaker than this are not decoded (object extraction passes its
         lowest threshold, ``stages.network_objects.min_score``).
@@ -241,7 +249,7 @@ class HeightNetModel:
         the session is built, so it runs as fast as a fixed-size export.
     """
 
-    def __init__(self, model_path: str | Path = "", threads: int = 2,
+    def __init__(self, model_path: str | Path = "", threads: int = 0,
                  detection_min_score: float = CONSTANTS.detection_min_score, input_width: int = 0):
         path = model_file(model_path)
         if not path.is_file():
@@ -249,19 +257,25 @@ class HeightNetModel:
         if input_width < 0:
             raise ConfigError(f"height.input_width must be 0 (the trained size) or a width in pixels, "
                               f"got {input_width}")
+        if threads < 0:
+            raise ConfigError(f"height.threads must be 0 (by the model) or more, got {threads}")
         self.path = path
         self.detection_min_score = detection_min_score
-        self.session = _session(path, threads)
+        first_threads = threads or CONSTANTS.auto_threads_v1
+        self.session = _session(path, first_threads)
         self.info = _read_info(path, self.session.get_modelmeta().custom_metadata_map)
+        self.threads = threads or _auto_threads(self.info)
         free = [dim for dim in self.session.get_inputs()[0].shape[2:] if not isinstance(dim, int)]
         if len(free) == 2:
             # A free input size: fixed here, at the trained size or the one asked for.
             width, height = input_size(self.info, input_width)
             self.info = dataclasses.replace(self.info, input_width=width, input_height=height)
-            self.session = _session(path, threads, dict(zip(free, (height, width))))
+            self.session = _session(path, self.threads, dict(zip(free, (height, width))))
         elif input_width and input_size(self.info, input_width) != (self.info.input_width, self.info.input_height):
             raise ModelError(f"{path} takes only its fixed {self.info.input_width}x{self.info.input_height} "
                              f"input, not {input_width} wide (a v2 export by heightpipe export takes any width)")
+        elif self.threads != first_threads:
+            self.session = _session(path, self.threads)
         self._check_signature()
         self._mean = np.array(self.info.mean, np.float32) * 255.0
         self._inv_std = 1.0 / (np.array(self.info.std, np.float32) * 255.0)
@@ -356,6 +370,13 @@ def input_size(info: ModelInfo, input_width: int) -> tuple[int, int]:
     width = input_width or info.input_width
     height = width * info.input_height / info.input_width
     return max(step, round(width / step) * step), max(step, round(height / step) * step)
+
+
+def _auto_threads(info: ModelInfo) -> int:
+    """``threads = 0``: the model's share of the cores (``CONSTANTS.auto_threads_v1`` / ``_v2``)."""
+    wanted = CONSTANTS.auto_threads_v2 if info.contact else CONSTANTS.auto_threads_v1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(wanted, cores))
 
 
 def _session(path: Path, threads: int, sizes: dict[str, int] | None = None):

@@ -140,3 +140,32 @@ def test_the_camera_error_correlation_in_the_metadata(text, expected):
     else:
         with pytest.raises(ModelError, match=expected):
             _read_error_correlation(Path("m.onnx"), meta)
+
+
+@pytest.mark.parametrize("contact, expected", [(False, 1), (True, 2)])
+def test_threads_by_the_model_unless_asked(tmp_path, monkeypatch, contact, expected):
+    """``threads = 0``: one thread for v1 (the other stages run on the second core beside it), two
+    for the slower v2; at most the cores there are; a number asked for is the number used."""
+    from media import make_tiny_contact_model
+
+    import stages.heightnet_model as heightnet_model
+
+    if contact:
+        offsets = np.zeros((48, 64, 2), np.float32)
+        path = make_tiny_contact_model(tmp_path / "v2.onnx", offsets, [0.4, 0.0, 0.2, -4.0, -4.0, -4.0])
+    else:
+        path = make_tiny_height_model(tmp_path / "v1.onnx")
+    monkeypatch.setattr(heightnet_model.os, "sched_getaffinity", lambda _pid: {0, 1, 2, 3})
+    model = HeightNetModel(path, threads=0)
+    assert model.threads == expected
+    assert model.session.get_session_options().intra_op_num_threads == expected
+    assert HeightNetModel(path, threads=3).session.get_session_options().intra_op_num_threads == 3
+    monkeypatch.setattr(heightnet_model.os, "sched_getaffinity", lambda _pid: {0})
+    assert HeightNetModel(path, threads=0).threads == 1
+
+
+def test_negative_threads_are_a_config_error(tiny_model):
+    from core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="height.threads must be 0"):
+        HeightNetModel(tiny_model, threads=-1)
