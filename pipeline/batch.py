@@ -347,6 +347,7 @@ def run_batch(specs: list[str], config: Config, options: BatchOptions) -> BatchR
     from pipeline.batch_engines import PARTIAL_FOLDER
     from pipeline.batch_manifest import Manifest, config_fingerprint
     from pipeline.batch_tables import write_tables
+    from stages.heightnet_model import most_threads
 
     _check_config(config)
     cores = len(os.sched_getaffinity(0))
@@ -355,9 +356,9 @@ def run_batch(specs: list[str], config: Config, options: BatchOptions) -> BatchR
     inputs = find_inputs(specs, out_dir)
     prepare_out_dir(out_dir)
     fingerprint = config_fingerprint(config)
-    # Parallel videos share the cores: one ONNX Runtime/OpenCV thread each rather than oversubscribing
-    # (height.threads = 0, by the model, counts as the two it was before it existed).
-    threads = 1 if options.address else max(1, min(config.height.threads or 2, cores // max(1, engine.workers)))
+    # Parallel videos share the cores: one ONNX Runtime/OpenCV thread each rather than oversubscribing.
+    threads = 1 if options.address else max(1, min(most_threads(config.height.threads),
+                                                   cores // max(1, engine.workers)))
     start = time.perf_counter()
     with _locked(out_dir):
         shutil.rmtree(out_dir / PARTIAL_FOLDER, ignore_errors=True)  # outputs of videos a stop cut short

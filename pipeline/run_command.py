@@ -140,8 +140,10 @@ def run_side_by_side(sources: list[str], config: Config, prefixes: list[Path]) -
     The network's threads are shared out between the cameras (``height.threads`` in all), so
     two cameras on two cores do not fight over four threads.
     """
+    from stages.heightnet_model import most_threads
+
     config.output.progress = False  # several bars on one terminal would overwrite each other
-    config.height.threads = max(1, (config.height.threads or 2) // len(sources))  # 0 (by the model): at most 2
+    config.height.threads = max(1, most_threads(config.height.threads) // len(sources))
     context = multiprocessing.get_context("spawn")
     processes = [context.Process(target=_camera_process, args=(source, config, prefix),
                                  name=f"heightpipe-run-{prefix.name}")

@@ -372,6 +372,13 @@ def input_size(info: ModelInfo, input_width: int) -> tuple[int, int]:
     return max(step, round(width / step) * step), max(step, round(height / step) * step)
 
 
+def most_threads(threads: int) -> int:
+    """The most ONNX Runtime threads a ``height.threads`` setting gives a model: itself, or for 0 (by
+    the model) the larger of the two the models get. Callers that share the cores out between
+    videos or cameras divide this."""
+    return threads or max(CONSTANTS.auto_threads_v1, CONSTANTS.auto_threads_v2)
+
+
 def _auto_threads(info: ModelInfo) -> int:
     """``threads = 0``: the model's share of the cores (``CONSTANTS.auto_threads_v1`` / ``_v2``)."""
     wanted = CONSTANTS.auto_threads_v2 if info.contact else CONSTANTS.auto_threads_v1
