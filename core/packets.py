@@ -294,3 +294,6 @@ class FramePacket:
     whose heights need only ``camera.height_m``)."""
     timings_ms: dict[str, float] = field(default_factory=dict)
     """Per-stage wall time for this frame (for the summary and the benchmark)."""
+    network_reused: bool = False
+    """The network outputs are the previous frame's: a live run behind (``pipeline/overlapped.py``).
+    The boxes still carry tracks; no height is measured on this frame."""

@@ -59,6 +59,8 @@ class RunSummary:
     interrupted: str | None = None
     dropped_frames: int = 0
     """Frames of a live source dropped because the pipeline was busy (overlapped runs only)."""
+    reused_network_frames: int = 0
+    """Frames of a live source given the previous frame's network outputs (``run.reuse_backlog``)."""
     overlapped: bool = False
     camera_source: str = "none"
     height_camera: HeightCamera | None = None
@@ -313,7 +315,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         from pipeline.overlapped import OverlappedChain
 
         overlapped = OverlappedChain(chain, camera, config.run.queue_frames,
-                                     live=isinstance(source, StreamSource))
+                                     live=isinstance(source, StreamSource), reuse_backlog=config.run.reuse_backlog)
         packets = overlapped.packets(frames)
     else:
         packets = chain.run(frames, camera)
@@ -357,6 +359,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         summary.wall_s = time.perf_counter() - start
         if overlapped is not None:
             summary.dropped_frames = overlapped.dropped
+            summary.reused_network_frames = overlapped.reused
         progress.close()
         close_all([stage for _, stage in chain.stages + sinks] + [source])
         webhook = next((sink.webhook_stats for name, sink in sinks if name == "events"), None)

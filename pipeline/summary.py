@@ -59,6 +59,9 @@ def format_summary(summary: RunSummary) -> str:
     if summary.interrupted:
         lines.append(f"  stopped by {summary.interrupted}: the outputs hold the {summary.frames} frames processed")
     lines.append(f"  capture: {summary.capture.summary()}")
+    if summary.reused_network_frames:
+        lines.append(f"  live source: {summary.reused_network_frames} frames given the previous frame's network "
+                     "outputs while the network was behind (tracked, no heights measured on them)")
     if summary.dropped_frames:
         lines.append(f"  live source: {summary.dropped_frames} frames dropped while the pipeline was busy")
     lines.append(f"  camera: {camera_state_text(summary.camera_source, summary.height_camera)}")

@@ -610,7 +610,7 @@ class TrackingStage:
     def process(self, packet: FramePacket) -> FramePacket:
         height, width = packet.frame.image.shape[:2]
         detections = packet.detections
-        if packet.frame.damage:
+        if packet.frame.damage or packet.network_reused:
             detections = [without_heights(detection) for detection in detections]
         packet.tracks = self.tracker.update(detections, packet.matches, frame_size=(width, height),
                                             frame_interval_s=self._frame_interval(packet.frame.time_s))
@@ -632,6 +632,6 @@ class TrackingStage:
 
 def without_heights(detection: Detection) -> Detection:
     """The detection with its height measurements withheld (every channel, and the lower bound): on
-    a frame decoded with errors the boxes still carry the tracks along, but no height measured on
-    concealed pixels is fused."""
+    a frame decoded with errors, or one given the previous frame's network outputs, the boxes still
+    carry the tracks along, but no height measured on concealed pixels or a stale map is fused."""
     return dataclasses.replace(detection, heights={}, min_height_m=None)

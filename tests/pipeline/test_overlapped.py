@@ -88,6 +88,55 @@ def test_a_live_source_drops_frames_when_busy_and_counts_them():
     assert processed == sorted(processed)
 
 
+class _SlowNetwork(_Note):
+    """A network stage that takes ``delay_s`` and leaves its frame's index in the height map."""
+
+    def process(self, packet: FramePacket) -> FramePacket:
+        packet = super().process(packet)
+        packet.height_map = np.full((8, 8), float(packet.frame.index), np.float32)
+        return packet
+
+
+def _paced_frames(count: int, interval_s: float):
+    """A live camera: a frame every ``interval_s``."""
+    for frame in _frames(count):
+        time.sleep(interval_s)
+        yield frame
+
+
+def _chain_with_undistortion(log: list, delay_s: float) -> StageChain:
+    return StageChain([("undistortion", _Note("undistortion", log)), ("ground", _SlowNetwork("ground", log, delay_s)),
+                       ("tracking", _Note("tracking", log))])
+
+
+def test_a_live_source_behind_the_network_reuses_its_last_outputs_before_it_drops():
+    log: list = []
+    overlapped = OverlappedChain(_chain_with_undistortion(log, delay_s=0.01), CAMERA, queue_frames=3,
+                                 live=True, reuse_backlog=1)
+    packets = list(overlapped.packets(_paced_frames(60, 0.005)))
+    reused = [p for p in packets if p.network_reused]
+    assert overlapped.reused == len(reused) > 0
+    assert len(packets) + overlapped.dropped == 60
+    ran = [index for name, index, _ in log if name == "ground"]
+    assert len(ran) == len(packets) - len(reused)
+    # Undistortion still runs on every frame; a reused frame carries the last map the network made.
+    assert [index for name, index, _ in log if name == "undistortion"] == [p.frame.index for p in packets]
+    for packet in reused:
+        assert packet.height_map[0, 0] == max(i for i in ran if i < packet.frame.index)
+    # Without reuse the same source drops more.
+    plain = OverlappedChain(_chain_with_undistortion([], delay_s=0.01), CAMERA, queue_frames=3, live=True)
+    list(plain.packets(_paced_frames(60, 0.005)))
+    assert plain.reused == 0 and plain.dropped > overlapped.dropped
+
+
+def test_a_file_never_reuses_network_outputs():
+    overlapped = OverlappedChain(_chain_with_undistortion([], delay_s=0.005), CAMERA, queue_frames=1,
+                                 reuse_backlog=1)
+    packets = list(overlapped.packets(_frames(30)))
+    assert len(packets) == 30 and overlapped.reused == 0
+    assert not any(p.network_reused for p in packets)
+
+
 def test_a_file_is_never_dropped_from():
     overlapped = OverlappedChain(_chain([], delay_s=0.005), CAMERA, queue_frames=1, live=False)
     assert len(list(overlapped.packets(_frames(30)))) == 30

@@ -24,6 +24,17 @@ def test_summary_says_when_a_run_was_stopped():
     assert "tracks: none confirmed" in text
 
 
+def test_summary_says_how_a_live_run_kept_up():
+    summary = RunSummary(source="cam", frames=100, wall_s=4.0, camera_source="calibration",
+                         reused_network_frames=12, dropped_frames=3)
+    text = format_summary(summary)
+    assert "12 frames given the previous frame's network outputs" in text
+    assert "no heights measured on them" in text
+    assert "3 frames dropped while the pipeline was busy" in text
+    quiet = format_summary(RunSummary(source="cam", frames=100, wall_s=4.0, camera_source="calibration"))
+    assert "live source" not in quiet
+
+
 def test_summary_says_which_camera_a_v2_network_decoded_with():
     from core.packets import HeightCamera
 

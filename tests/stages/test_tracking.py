@@ -506,19 +506,21 @@ def test_the_cameras_share_of_the_height_widens_the_reported_std_not_the_height(
     assert unsure.height_std_m == pytest.approx(np.hypot(exact.height_std_m, 0.05 * exact.height_m))
 
 
-def test_damaged_frames_carry_the_track_but_fuse_no_height():
+@pytest.mark.parametrize("why", ["damaged", "network reused"])
+def test_damaged_or_stale_map_frames_carry_the_track_but_fuse_no_height(why):
     stage = TrackingStage(TrackingConfig(min_hits=1))
     image = np.zeros((240, 320, 3), np.uint8)
     heights = []
     for i in range(20):
-        damage = "decoder flags it corrupt" if i >= 10 else ""
-        detection = _detection(10 + 3 * i, 10, 3.0 if damage else 1.7)   # concealment: a wild height
+        bad = i >= 10
+        damage = "decoder flags it corrupt" if bad and why == "damaged" else ""
+        detection = _detection(10 + 3 * i, 10, 3.0 if bad else 1.7)   # concealment, a stale map: a wild height
         detection.add_height(GEOMETRY, Measurement(detection.height(), 0.1, "test"))
         packet = stage.process(FramePacket(Frame(i, i / 10, image, damage=damage), CameraInfo(320, 240),
-                                           detections=[detection]))
+                                           detections=[detection], network_reused=bad and why == "network reused"))
         assert len(packet.tracks) == 1
         heights.append(packet.tracks[0].height_m)
-    assert heights[10:] == [heights[9]] * 10            # no height fused on a damaged frame
+    assert heights[10:] == [heights[9]] * 10            # no height fused on those frames
     assert packet.tracks[0].box[0] > 60                 # while the box still follows the object
 
 
