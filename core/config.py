@@ -541,7 +541,7 @@ class RunConfig:
     """Run capture, the network, the other stages and the sinks on their own threads (same output)."""
     queue_frames: int = 4
     """Frames waiting between two threads at most: back-pressure for files, drops for live sources."""
-    reuse_backlog: int = 2
+    reuse_backlog: int = 1
     """Live sources: with this many frames waiting for the network, the next one reuses the last
     network outputs instead (no height measured on it); 0 = never (frames are only dropped)."""
 
