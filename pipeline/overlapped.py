@@ -55,6 +55,10 @@ class OverlappedConstants:
     poll_s: float = 0.1
     """How often a waiting thread looks whether the run was stopped: a stop is felt at once,
     the checks cost nothing."""
+    live_wait_s: float = 0.04
+    """How long a live frame waits for room before it is dropped: one frame of a 25 frames/s
+    camera. Frames come in bursts (network jitter; the decoder's buffered frames at once when
+    a stream ends) that the queue absorbs a moment later; the socket holds the stream meanwhile."""
 
 
 CONSTANTS = OverlappedConstants()
@@ -98,6 +102,8 @@ class OverlappedChain:
     reuse_backlog : int
         Live sources only: with at least this many frames waiting for the network, the next one
         reuses the last network outputs (counted in ``reused``); 0 = never.
+    live_wait_s : float
+        Live sources only: how long a frame waits for room in the first queue before it is dropped.
     """
 
     chain: StageChain
@@ -105,6 +111,7 @@ class OverlappedChain:
     queue_frames: int = 4
     live: bool = False
     reuse_backlog: int = 0
+    live_wait_s: float = CONSTANTS.live_wait_s
     dropped: int = 0
     reused: int = 0
     _stop: threading.Event = field(default_factory=threading.Event)
@@ -145,7 +152,7 @@ class OverlappedChain:
                 packet = FramePacket(frame=frame, camera=self.camera)
                 if self.live:
                     try:
-                        outbox.put_nowait(packet)
+                        outbox.put(packet, timeout=self.live_wait_s)
                     except queue.Full:
                         self.dropped += 1
                 elif not self._put(outbox, packet):

@@ -81,7 +81,7 @@ def test_stopping_early_ends_the_threads():
 
 def test_a_live_source_drops_frames_when_busy_and_counts_them():
     log: list = []
-    overlapped = OverlappedChain(_chain(log, delay_s=0.01), CAMERA, queue_frames=1, live=True)
+    overlapped = OverlappedChain(_chain(log, delay_s=0.01), CAMERA, queue_frames=1, live=True, live_wait_s=0.0)
     processed = [p.frame.index for p in overlapped.packets(_frames(60))]
     assert overlapped.dropped > 0
     assert len(processed) + overlapped.dropped == 60
@@ -112,7 +112,7 @@ def _chain_with_undistortion(log: list, delay_s: float) -> StageChain:
 def test_a_live_source_behind_the_network_reuses_its_last_outputs_before_it_drops():
     log: list = []
     overlapped = OverlappedChain(_chain_with_undistortion(log, delay_s=0.01), CAMERA, queue_frames=3,
-                                 live=True, reuse_backlog=1)
+                                 live=True, reuse_backlog=1, live_wait_s=0.0)
     packets = list(overlapped.packets(_paced_frames(60, 0.005)))
     reused = [p for p in packets if p.network_reused]
     assert overlapped.reused == len(reused) > 0
@@ -124,9 +124,27 @@ def test_a_live_source_behind_the_network_reuses_its_last_outputs_before_it_drop
     for packet in reused:
         assert packet.height_map[0, 0] == max(i for i in ran if i < packet.frame.index)
     # Without reuse the same source drops more.
-    plain = OverlappedChain(_chain_with_undistortion([], delay_s=0.01), CAMERA, queue_frames=3, live=True)
+    plain = OverlappedChain(_chain_with_undistortion([], delay_s=0.01), CAMERA, queue_frames=3, live=True,
+                            live_wait_s=0.0)
     list(plain.packets(_paced_frames(60, 0.005)))
     assert plain.reused == 0 and plain.dropped > overlapped.dropped
+
+
+def _bursts(count: int, burst: int, interval_s: float):
+    """A live camera whose frames arrive ``burst`` at a time (network jitter, a decoder's flush)."""
+    for frame in _frames(count):
+        if frame.index % burst == 0:
+            time.sleep(interval_s)
+        yield frame
+
+
+def test_a_burst_of_live_frames_waits_a_moment_for_room_instead_of_being_dropped():
+    # Four frames at once every 80 ms (25 frames/s on average), a 5 ms network, room for two.
+    waiting = OverlappedChain(_chain([], delay_s=0.005), CAMERA, queue_frames=2, live=True)
+    assert len(list(waiting.packets(_bursts(40, 4, 0.08)))) == 40 and waiting.dropped == 0
+    hasty = OverlappedChain(_chain([], delay_s=0.005), CAMERA, queue_frames=2, live=True, live_wait_s=0.0)
+    list(hasty.packets(_bursts(40, 4, 0.08)))
+    assert hasty.dropped > 0
 
 
 def test_a_file_never_reuses_network_outputs():
