@@ -15,8 +15,8 @@ that was seeded and that primed the background model.
 
 The queues between threads hold at most ``run.queue_frames`` frames. A file's capture thread
 waits when the queue is full (back-pressure: nothing is buffered without bound); a live
-source's drops the frame instead, so the run stays live rather than falls behind, and
-``dropped`` counts those frames.
+source's waits at most one frame's time (``live_wait_s``: bursts) and then drops the frame, so
+the run stays live rather than falls behind, and ``dropped`` counts those frames.
 
 Before it drops, a live run sheds the network: with ``run.reuse_backlog`` frames or more
 waiting for the network thread, the next frame gets the last frame's network outputs (its
