@@ -77,7 +77,7 @@ def summarise(readings: list[BoxReading]) -> dict[str, float]:
 def measure(model: str, overrides: list[str]) -> dict[str, float]:
     """One model over the clip: the readings of every labelled person whose head and feet are in view."""
     from core.config import load_config
-    from core.packets import FramePacket
+    from pipeline.overlapped import split_chain
     from pipeline.runner import build_camera
     from pipeline.stage_chain import build_stage_chain, load_height_model
     from stages.capture import open_source
@@ -85,17 +85,14 @@ def measure(model: str, overrides: list[str]) -> dict[str, float]:
     config = load_config(None, [f"camera.calibration={CALIBRATION}", f"height.model={model}", *overrides])
     source = open_source(str(VIDEO), config.capture)
     camera = build_camera(config, *source.size)
-    chain = build_stage_chain(config, camera, model=load_height_model(config))
-    upto = [stage for name, stage in chain.stages[:[n for n, _ in chain.stages].index("height") + 1]]
+    # Undistortion and the network only: what the network thread of a run does.
+    network, _ = split_chain(build_stage_chain(config, camera, model=load_height_model(config)))
     labels = load_labels(undistort=True)
     scale = source.size[0] / LABEL_WIDTH_PX
     readings: list[BoxReading] = []
     try:
-        for frame in source.frames():
-            packet = FramePacket(frame=frame, camera=camera)
-            for stage in upto:
-                packet = stage.process(packet)
-            for person in labels.get(frame.index, []):
+        for packet in network.run(source.frames(), camera):
+            for person in labels.get(packet.frame.index, []):
                 if not person.foot_inside or person.head[1] < 0:
                     continue
                 reading = read_box(packet.height_map, person, scale)
