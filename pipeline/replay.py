@@ -23,7 +23,7 @@ from core.config import Config
 from core.errors import HeightpipeError
 
 TOPICS = ("/tracks", "/camera/image", "/camera/calibration", "/camera/height", "/camera/ground",
-          "/camera/matches", "/capture/damage", "/events")
+          "/camera/matches", "/capture/damage", "/capture/network_skipped", "/events")
 """What replay draws; /camera/annotations is redundant with /tracks (boxes are redrawn)."""
 
 
@@ -205,8 +205,9 @@ def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time:
     if (calibration := messages.get("/camera/calibration")) is not None and any(calibration.K):
         logger.log_camera(np.array(calibration.K, dtype=np.float64).reshape(3, 3),
                           calibration.width, calibration.height)
-    if record is not None and record.frame_index % frame.maps_every:  # between stored maps: keep the last
-        logger.keep("/height")
+    skipped = messages.get("/capture/network_skipped")
+    if skipped is not None or (record is not None and record.frame_index % frame.maps_every):
+        logger.keep("/height")  # between stored maps, or the network skipped: keep the last
         logger.keep("/camera/ground")
     if (height := messages.get("/camera/height")) is not None:
         pixels = _raw_pixels(height)
@@ -219,6 +220,8 @@ def _log_frame(logger: Any, frame: _FrameMessages, ordinal: int, first_log_time:
         logger.log_tracks(tracks_from_record(record))
     if (damage := messages.get("/capture/damage")) is not None:
         logger.log_damage(damage.message)
+    if skipped is not None:
+        logger.log_network_skipped(skipped.message)
     logger.log_events(messages.get("/events", []))
     logger.end_frame()
 

@@ -3,7 +3,9 @@
 Flushed after every frame, so a crash or kill keeps every frame written before it.
 Boxes are in the source's pixels (``Frame.to_source``: the run may work on scaled frames).
 ``frame_damaged`` is 1 on frames decoded with errors: their heights were not measured (the
-track's height is carried over from clean frames) and the box may be off.
+track's height is carried over from clean frames) and the box may be off. ``network_reused`` is
+1 on live frames that reused the last frame's network outputs to keep up: no height was measured
+on them either.
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ from core.packets import FramePacket
 from stages.sink_common import confirmed
 
 CSV_HEADER = ("frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score",
-              "height_m", "height_std_m", "height_source", "frame_damaged")
+              "height_m", "height_std_m", "height_source", "frame_damaged",
+              "network_reused")
 
 
 class TrackCsvSink:
@@ -38,7 +41,7 @@ class TrackCsvSink:
                 frame.index, f"{frame.time_s:.4f}", track.track_id, track.cls,
                 f"{x:.1f}", f"{y:.1f}", f"{w:.1f}", f"{h:.1f}", f"{track.score:.3f}",
                 f"{track.height_m:.3f}", f"{track.height_std_m:.3f}", track.height_source,
-                int(bool(frame.damage))))
+                int(bool(frame.damage)), int(packet.network_reused)))
         self._file.flush()
 
     def close(self) -> None:

@@ -12,6 +12,8 @@ epoch ns, + the frame's source time):
     /camera/annotations   foxglove.ImageAnnotations: confirmed tracks' boxes and labels
     /camera/matches       foxglove.ImageAnnotations: matched features as prev->curr segments
     /capture/damage       foxglove.Log (warning), only on frames decoded with errors: why
+    /capture/network_skipped  foxglove.Log (info), only on live frames that reused the last
+                          frame's network outputs to keep up (no height or ground map stored on them)
     /events               JSON (schema heightpipe.RuleEvent): height-rule firings, at their frame
 
 Written with foxglove-sdk (Rust; about twice as fast as the pure-Python mcap writer). Crash
@@ -40,9 +42,9 @@ from core.config import OutputConfig
 from core.errors import HeightpipeError
 from core.packets import CameraInfo, FeatureMatches, FramePacket, Track
 from stages.height_rules import EVENT_JSON_SCHEMA
-from stages.sink_common import (BACKGROUND_MATCH_RGB, DAMAGE_TOPIC, MATCH_KIND_KEY, OBJECT_MATCH_RGB,
-                                FrameEncoder, check_output_config, confirmed, damage_text, quality_rgb,
-                                track_label)
+from stages.sink_common import (BACKGROUND_MATCH_RGB, DAMAGE_TOPIC, MATCH_KIND_KEY, NETWORK_SKIPPED_TOPIC,
+                                OBJECT_MATCH_RGB, FrameEncoder, check_output_config, confirmed, damage_text,
+                                network_skipped_text, quality_rgb, track_label)
 from stages.track_record import SCHEMA_NAME, build_track_record_type, encode_track_array
 
 FRAME_ID = "camera"
@@ -97,6 +99,7 @@ class McapSink:
         self._annotations = ImageAnnotationsChannel("/camera/annotations", context=context)
         self._matches = ImageAnnotationsChannel("/camera/matches", context=context)
         self._damage = LogChannel(DAMAGE_TOPIC, context=context)
+        self._network_skipped = LogChannel(NETWORK_SKIPPED_TOPIC, context=context)
         self._events = foxglove.Channel(
             "/events", message_encoding="json", context=context,
             schema=foxglove.Schema(name=EVENT_JSON_SCHEMA["title"], encoding="jsonschema",
@@ -137,6 +140,9 @@ class McapSink:
         if frame.damage:
             self._damage.log(Log(timestamp=stamp, level=LogLevel.Warning, name="capture",
                                  message=damage_text(frame)), log_time=log_time)
+        if packet.network_reused:
+            self._network_skipped.log(Log(timestamp=stamp, level=LogLevel.Info, name="network",
+                                          message=network_skipped_text(frame)), log_time=log_time)
         for event in packet.events:
             self._events.log(event.to_dict(), log_time=log_time)
         self._flush_if_due(frame.time_s)

@@ -14,6 +14,8 @@ same recording. Entities:
     /height             height map in millimetres, shown colour-mapped in metres
     /tracks/<id>/height one height time series per confirmed track; cleared while it coasts
     /capture/damage     a warning TextLog on each frame decoded with errors
+    /capture/network_skipped  an info TextLog on each live frame that reused the last frame's
+                        network outputs to keep up (its maps are not logged again)
     /events             height-rule firings as a text log
     /status             the camera's calibration state (what the heights can be trusted for; with a
                         v2 network, the camera its heights were decoded with and the heads' spread)
@@ -38,9 +40,10 @@ import rerun.blueprint as rrb
 from core.config import OutputConfig
 from core.errors import ConfigError, HeightpipeError
 from core.packets import OBJECT_CLASSES, FramePacket, HeightCamera, Track
-from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC, OBJECT_MATCH_RGB,
-                                FrameEncoder, camera_state_text, check_output_config, class_id,
-                                confirmed, damage_text, estimate_text, height_text, quality_rgb, track_label)
+from stages.sink_common import (BACKGROUND_MATCH_RGB, CLASS_COLORS_RGB, DAMAGE_TOPIC, NETWORK_SKIPPED_TOPIC,
+                                OBJECT_MATCH_RGB, FrameEncoder, camera_state_text, check_output_config,
+                                class_id, confirmed, damage_text, estimate_text, height_text,
+                                network_skipped_text, quality_rgb, track_label)
 
 APPLICATION_ID = "heightpipe"
 RERUN_MODES = ("save", "spawn", "web", "serve")
@@ -85,6 +88,7 @@ def heightpipe_blueprint(scene_camera: bool = False) -> rrb.Blueprint:
     """The view's layout; ``scene_camera``: with a panel for the camera read from the scene."""
     right = [rrb.TimeSeriesView(name="Track height (m)", origin="/tracks"),
              rrb.TextLogView(name="Height-rule events", origin="/events"),
+             rrb.TextLogView(name="Frame notes (damaged, network skipped)", origin="/capture"),
              rrb.TextDocumentView(name="Camera", origin="/status")]
     if scene_camera:
         right.append(rrb.Spatial2DView(name="Camera read from the scene (1.70 m bars)", origin="/scene_camera"))
@@ -94,7 +98,7 @@ def heightpipe_blueprint(scene_camera: bool = False) -> rrb.Blueprint:
                 rrb.Spatial2DView(name="Frame: tracks, events, matches", origin="/camera"),
                 rrb.Spatial2DView(name="Height map (m)", origin="/height"),
                 row_shares=[3, 2]),
-            rrb.Vertical(*right, row_shares=[5, 2, 1, 3][:len(right)]),
+            rrb.Vertical(*right, row_shares=[5, 2, 1, 1, 3][:len(right)]),
             column_shares=[3, 2]),
         collapse_panels=True)
 
@@ -193,6 +197,9 @@ class RerunFrameLogger:
 
     def log_damage(self, text: str) -> None:
         self.rec.log(DAMAGE_TOPIC, rr.TextLog(text, level=rr.TextLogLevel.WARN))
+
+    def log_network_skipped(self, text: str) -> None:
+        self.rec.log(NETWORK_SKIPPED_TOPIC, rr.TextLog(text, level=rr.TextLogLevel.INFO))
 
     def log_tracks(self, tracks: list[Track]) -> None:
         """Draws the confirmed ones; always logs (an empty list clears last frame's boxes).
@@ -361,6 +368,8 @@ class RerunSink:
         log.log_tracks(packet.tracks)
         if packet.frame.damage:
             log.log_damage(damage_text(packet.frame))
+        if packet.network_reused:
+            log.log_network_skipped(network_skipped_text(packet.frame))
         log.log_events([event.to_dict() for event in packet.events])
         log.end_frame()
         self._flush_if_due(packet.frame.time_s)

@@ -23,6 +23,9 @@ BACKGROUND_MATCH_RGB = (60, 220, 255)
 """Feature-match colours: on a moving object / on the static background."""
 DAMAGE_TOPIC = "/capture/damage"
 """MCAP topic and rerun entity of the damaged-frame log entries."""
+NETWORK_SKIPPED_TOPIC = "/capture/network_skipped"
+"""MCAP topic and rerun entity of the notes on live frames that reused the last frame's network
+outputs (``FramePacket.network_reused``); under /capture so one rerun log view shows both kinds."""
 MATCH_KIND_KEY = "kind"
 """Metadata key of each /camera/matches PointsAnnotation in MCAP: 'object' or 'background'."""
 
@@ -70,9 +73,11 @@ class FrameEncoder:
         """Whether this frame's height map and ground mask are stored (``output.height_map_every``).
 
         By source index, so a recording's maps fall on the same frames whatever the stride or
-        the sink; between them, viewers keep showing the last map stored.
+        the sink; between them, viewers keep showing the last map stored. Never on a frame that
+        reused the last frame's network outputs (a live run keeping up): its maps are the last
+        frame's.
         """
-        return packet.frame.index % self.height_map_every == 0
+        return packet.frame.index % self.height_map_every == 0 and not packet.network_reused
 
     def jpeg(self, packet: FramePacket) -> bytes:
         image = packet.frame.image
@@ -107,6 +112,11 @@ def height_to_mm(height_m: np.ndarray, scale: int) -> np.ndarray:
 
 def damage_text(frame: Frame) -> str:
     return f"frame {frame.index} damaged, heights not measured: {frame.damage}"
+
+
+def network_skipped_text(frame: Frame) -> str:
+    return (f"frame {frame.index}: height network skipped to keep up with the live source, "
+            "the last frame's height map and ground mask used, heights not measured")
 
 
 def confirmed(tracks: list[Track]) -> list[Track]:

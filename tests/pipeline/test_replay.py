@@ -130,6 +130,39 @@ def test_damaged_frames_are_marked_in_mcap_live_rrd_and_replay(tmp_path, capsys)
         assert [(frame, row["TextLog:level"]) for frame, row in rows] == [(2, ["WARN"]), (3, ["WARN"])]
 
 
+def test_network_skipped_frames_are_marked_and_keep_the_last_maps_in_mcap_live_rrd_and_replay(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    config = OutputConfig(height_map_every=1)
+    live = RerunSink(tmp_path / "run.rrd", "save", config, "run")
+    recording = McapSink(tmp_path / "run.mcap", config)
+    for index in range(6):
+        packet = make_packet(index)
+        packet.network_reused = index in (2, 3)  # a live run behind its network
+        live.write(packet)
+        recording.write(packet)
+    live.close()
+    recording.close()
+
+    with open(tmp_path / "run.mcap", "rb") as stream:
+        messages = [(channel.topic, decoded) for _, channel, _, decoded in make_reader(
+            stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/capture/network_skipped", "/camera/height", "/camera/ground"])]
+    notes = [(decoded.level, decoded.message) for topic, decoded in messages if topic == "/capture/network_skipped"]
+    assert [level for level, _ in notes] == [2, 2]  # info
+    assert [message.split(":")[0] for _, message in notes] == ["frame 2", "frame 3"]
+    assert all("heights not measured" in message for _, message in notes)
+    assert sum(topic == "/camera/height" for topic, _ in messages) == 4  # frames 0, 1, 4, 5
+    assert sum(topic == "/camera/ground" for topic, _ in messages) == 4
+    assert cli.main(["replay", str(tmp_path / "run.mcap"), "--save", str(tmp_path / "replayed.rrd")]) == 0
+    for rrd in ("run.rrd", "replayed.rrd"):
+        rows = rrd_rows(tmp_path / rrd)
+        assert [(frame, row["TextLog:level"]) for frame, row in rows["/capture/network_skipped"]] == [
+            (2, ["INFO"]), (3, ["INFO"])]
+        assert [frame for frame, _ in rows["/height"]] == [0, 1, 4, 5], "kept, neither logged again nor cleared"
+
+
 def test_replay_serves_the_web_viewer(tmp_path):
     import sys
     import urllib.parse
