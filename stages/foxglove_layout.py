@@ -6,7 +6,9 @@ Panels, for the topics ``stages/mcap_sink.py`` writes:
     height map, colour-mapped 0-5 m         (Image: /camera/height, 16UC1 millimetres)
     height per track                        (Plot: one series per confirmed track of /tracks,
                                              keyed by its id: Foxglove's dynamic series)
-    height-rule events                      (Table: /events)
+    height-rule events                      (Table: /events), in tabs beside the frame notes:
+                                            damaged frames (Log: /capture/damage) and live frames
+                                            that skipped the network (Log: /capture/network_skipped)
 
 Built with foxglove-sdk's layout API, so the file follows Foxglove's own schema. Rebuild it
 after changing this module:  python -m stages.foxglove_layout docs/foxglove_layout.json
@@ -48,7 +50,14 @@ def heightpipe_layout() -> fl.Layout:
                              dynamic_value_field="height_m", label="track", show_line=True,
                              timestamp_method="receiveTime")],
         show_legend=True, legend_display="floating", y_axis_label="m", min_y_value=0.0))
-    events = fl.TablePanel(title="Height-rule events", config=fl.TableConfig(topic_path="/events"))
+    events = fl.TabContainer(tabs=[
+        fl.TabItem(title="Height-rule events",
+                   content=fl.TablePanel(title="Height-rule events", config=fl.TableConfig(topic_path="/events"))),
+        fl.TabItem(title="Damaged frames",
+                   content=fl.LogPanel(title="Damaged frames", config=fl.LogConfig(topic_to_render="/capture/damage"))),
+        fl.TabItem(title="Network skipped (live)",
+                   content=fl.LogPanel(title="Network skipped (live)",
+                                       config=fl.LogConfig(topic_to_render="/capture/network_skipped")))])
     return fl.Layout(content=fl.SplitContainer(direction="row", items=[
         fl.SplitItem(proportion=3, content=fl.SplitContainer(direction="column", items=[
             fl.SplitItem(proportion=3, content=frame),

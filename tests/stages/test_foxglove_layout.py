@@ -21,5 +21,6 @@ def test_layout_topics_are_written_by_the_mcap_sink():
     written = set(re.findall(r"^    (/[\w/]+)", mcap_sink.__doc__, re.MULTILINE))
     text = json.dumps(json.loads(SHIPPED.read_text()))
     used = set(re.findall(r'"(/[a-z_/]+)', text)) | {m.split(".")[0] for m in re.findall(r'"(/[a-z_/]+\.)', text)}
-    assert {"/camera/image", "/camera/annotations", "/camera/height", "/tracks", "/events"} <= used
+    assert {"/camera/image", "/camera/annotations", "/camera/height", "/tracks", "/events",
+            "/capture/damage", "/capture/network_skipped"} <= used
     assert used <= written, used - written
