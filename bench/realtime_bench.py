@@ -46,7 +46,7 @@ def measure_camera(clip: str, overrides: list[str], out_dir: str, results) -> No
     results.put({
         "fps": summary.fps,
         "frames": summary.frames,
-        "stage_ms": {name: ms / max(1, summary.frames) for name, ms in summary.stage_ms.items()},
+        "stage_ms": summary.ms_per_frame(),
         "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "mcap_mb_min": outputs.mcap.stat().st_size / 1e6 / video_min,
         "rrd_mb_min": outputs.rrd.stat().st_size / 1e6 / video_min,

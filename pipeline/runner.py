@@ -51,6 +51,9 @@ class RunSummary:
     objects: ObjectTable = field(default_factory=ObjectTable)
     """One row per track ever confirmed: what PREFIX.objects.csv holds."""
     stage_ms: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+    stage_frames: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    """How many frames each stage and sink ran on: all of them, but a live run's network stages
+    skip the frames that reuse their outputs."""
     wall_s: float = 0.0
     events: int = 0
     """Height-rule firings (each one a line of PREFIX.events.jsonl)."""
@@ -72,6 +75,14 @@ class RunSummary:
     @property
     def fps(self) -> float:
         return self.frames / self.wall_s if self.wall_s > 0 else 0.0
+
+    def ms_per_frame(self) -> dict[str, float]:
+        """Each stage's and sink's mean time over the frames it ran on (what one run of it costs)."""
+        return {name: ms / max(1, self.stage_frames.get(name, self.frames)) for name, ms in self.stage_ms.items()}
+
+    def total_ms_per_frame(self) -> float:
+        """All stages' and sinks' time over all frames (what a frame costs, skipped stages included)."""
+        return sum(self.stage_ms.values()) / max(1, self.frames)
 
 
 class StopRequested(BaseException):
@@ -332,6 +343,7 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         summary.frames += 1
         for name, ms in packet.timings_ms.items():
             summary.stage_ms[name] += ms
+            summary.stage_frames[name] += 1
         summary.events += len(packet.events)
         summary.height_camera = packet.height_camera or summary.height_camera
 

@@ -78,8 +78,9 @@ def format_summary(summary: RunSummary) -> str:
         lines.append(f"  events: {summary.events} height-rule firings"
                      + (f"; webhook: {summary.webhook}" if summary.webhook else ""))
     if summary.frames:
-        per_frame = ", ".join(f"{name} {ms / summary.frames:.1f}" for name, ms in summary.stage_ms.items())
-        lines.append(f"  ms per frame: {per_frame}")
+        per_frame = ", ".join(f"{name} {ms:.1f}" for name, ms in summary.ms_per_frame().items())
+        over = " (the network's stages: over the frames it ran on)" if summary.reused_network_frames else ""
+        lines.append(f"  ms per frame{over}: {per_frame}")
     if summary.outputs is not None:
         files = [f"{p} ({_size(p)})" for p in summary.outputs.existing()]
         lines.append("  outputs: " + (", ".join(files) if files else "none"))

@@ -35,6 +35,17 @@ def test_summary_says_how_a_live_run_kept_up():
     assert "live source" not in quiet
 
 
+def test_a_stage_skipped_on_some_frames_is_timed_over_the_frames_it_ran_on():
+    summary = RunSummary(source="cam", frames=100, wall_s=4.0, camera_source="calibration",
+                         reused_network_frames=20)
+    summary.stage_ms.update(ground=1600.0, tracking=200.0)  # the network on 80 frames, 20 ms each
+    summary.stage_frames.update(ground=80, tracking=100)
+    assert summary.ms_per_frame() == {"ground": 20.0, "tracking": 2.0}
+    assert summary.total_ms_per_frame() == 18.0
+    line = next(line for line in format_summary(summary).splitlines() if line.startswith("  ms per frame"))
+    assert "over the frames it ran on" in line and "ground 20.0, tracking 2.0" in line
+
+
 def test_summary_says_which_camera_a_v2_network_decoded_with():
     from core.packets import HeightCamera
 
