@@ -35,6 +35,24 @@ def rss_mb() -> float:
     return float("nan")
 
 
+class RssReadings:
+    """The process's RSS at every ``every_min`` minutes of video, once each (``on_frame`` of
+    ``run_pipeline``): rows of (video min, wall s, frames/s so far, RSS MB, frames)."""
+
+    def __init__(self, fps: float, every_min: float):
+        self.frames_per_reading = max(1, round(every_min * 60.0 * fps))
+        self.fps = fps
+        self.rows: list[tuple[float, float, float, float, int]] = []
+
+    def on_frame(self, frames: int, _total: int | None, elapsed_s: float) -> None:
+        # ``frames`` counts frames written: it stands still (at 0 at the start, too) while the
+        # tracker holds frames back to backfill a new track, so one count may come several times.
+        if not frames or frames % self.frames_per_reading or (self.rows and frames <= self.rows[-1][4]):
+            return
+        self.rows.append((frames / self.fps / 60.0, elapsed_s, frames / elapsed_s, rss_mb(), frames))
+        print(f"  {self.rows[-1][0]:.1f} min of video: RSS {self.rows[-1][3]:.0f} MB", flush=True)
+
+
 def main() -> None:
     import cv2
 
@@ -60,37 +78,32 @@ def main() -> None:
     config.output.progress = False
     config.output.rerun = "save"
     config.output.mcap = config.output.csv = True
-    readings: list[tuple[float, float, float, float]] = []  # video min, wall s, fps, RSS MB
-    frames_per_reading = max(1, round(args.every * 60.0 * fps))
+    readings = RssReadings(fps, args.every)
 
     with tempfile.TemporaryDirectory() as out_dir:
         prefix = Path(out_dir) / "soak"
 
-        def on_frame(frames: int, _total: int | None, elapsed_s: float) -> None:
-            if frames % frames_per_reading == 0:
-                readings.append((frames / fps / 60.0, elapsed_s, frames / elapsed_s, rss_mb()))
-                print(f"  {readings[-1][0]:.1f} min of video: RSS {readings[-1][3]:.0f} MB", flush=True)
-
         print(f"clip: {clip} ({fps:g} frames/s), {args.minutes:g} min of video; .rrd index "
               f"{config.output.rrd_index}; load average {os.getloadavg()[0]:.1f} at the start", flush=True)
-        summary = run_pipeline(str(clip), config, prefix, on_frame=on_frame)
+        summary = run_pipeline(str(clip), config, prefix, on_frame=readings.on_frame)
         sizes = {name: path.stat().st_size / 1e6 for name, path in
                  (("mcap", summary.outputs.mcap), ("rrd", summary.outputs.rrd))}
 
     print()
     print("| video min | wall s | frames/s so far | RSS MB |")
     print("|---|---|---|---|")
-    for video_min, wall_s, so_far, rss in readings:
+    for video_min, wall_s, so_far, rss, _ in readings.rows:
         print(f"| {video_min:.1f} | {wall_s:.0f} | {so_far:.1f} | {rss:.0f} |")
     video_h = summary.frames / fps / 3600.0
     print()
     print(f"frames: {summary.frames}; MCAP {sizes['mcap'] / 1e3 / video_h:.2f} GB/h, "
           f".rrd {sizes['rrd'] / 1e3 / video_h:.2f} GB/h of video; load average {os.getloadavg()[0]:.1f} at the end")
-    if len(readings) >= 2:
-        first, last = readings[0][3], readings[-1][3]
+    rows = readings.rows
+    if len(rows) >= 2:
+        first, last = rows[0][3], rows[-1][3]
         change = (last - first) / first
         verdict = "flat" if abs(change) <= FLAT_SHARE else "NOT flat"
-        print(f"RSS from {readings[0][0]:.0f} to {readings[-1][0]:.0f} min: {first:.0f} -> {last:.0f} MB "
+        print(f"RSS from {rows[0][0]:.0f} to {rows[-1][0]:.0f} min: {first:.0f} -> {last:.0f} MB "
               f"({change:+.1%}): {verdict} (within {FLAT_SHARE:.0%})")
 
 

@@ -23,8 +23,12 @@ def main(args: argparse.Namespace, config) -> int:
     from heightnet.predict import HeightPredictor, model_path_from_config, predict_to_folder
     from stages.sink_common import height_camera_text
 
+    from stages.heightnet_model import most_threads
+
     model = model_path_from_config(args.model or config.height.model)
-    predictor = HeightPredictor(model, config.height.threads, config.height.input_width)
+    # The network is all this command runs: it takes the most threads its setting allows (a run's
+    # v1 takes one and leaves the other core to the stages beside it).
+    predictor = HeightPredictor(model, most_threads(config.height.threads), config.height.input_width)
     camera = dataclasses.replace(config.camera, height_m=args.camera_height or config.camera.height_m,
                                  calibration=args.calibration or config.camera.calibration)
     written = predict_to_folder(Path(args.source), Path(args.out), predictor, every=max(1, args.every),
