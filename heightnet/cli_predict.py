@@ -21,9 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace, config) -> int:
     from heightnet.predict import HeightPredictor, model_path_from_config, predict_to_folder
-    from stages.sink_common import height_camera_text
-
     from stages.heightnet_model import most_threads
+    from stages.sink_common import height_camera_text
 
     model = model_path_from_config(args.model or config.height.model)
     # The network is all this command runs: it takes the most threads its setting allows (a run's
