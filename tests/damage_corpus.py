@@ -155,7 +155,9 @@ def run_heightpipe(video: Path, prefix: Path, model: Path, reference: Path | Non
     if code == 0:
         measured = _measured(mcap_path)
         with open(csv_path, newline="") as stream:
-            measured += [tuple(row[:-1]) for row in csv.reader(stream)]
+            rows = list(csv.reader(stream))
+        damaged = rows[0].index("frame_damaged") if rows else 0
+        measured += [tuple(value for i, value in enumerate(row) if i != damaged) for row in rows]
     mcap_path.unlink(missing_ok=True)
     csv_path.unlink(missing_ok=True)
     return code, err.getvalue(), measured
