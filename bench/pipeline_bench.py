@@ -74,11 +74,10 @@ def main() -> None:
     print(f"| ratio run / decode | {ratio:.3f} |")
     print(f"| target | >= {TARGET_FPS:.0f} frames/s: {'met' if summary.fps >= TARGET_FPS else 'NOT met'} |")
     print()
-    total = sum(summary.stage_ms.values()) / summary.frames
+    total = summary.total_ms_per_frame()
     print("| stage | ms per frame | share |")
     print("|---|---|---|")
-    for name, ms in summary.stage_ms.items():
-        per_frame = ms / summary.frames
+    for name, per_frame in summary.ms_per_frame().items():
         print(f"| {name} | {per_frame:.1f} | {per_frame / total:.0%} |")
     other = 1000.0 / summary.fps - total
     print(f"| capture (decode) and loop overhead | {other:.1f} | |")
