@@ -427,6 +427,19 @@ def size_group(box) -> str:
 
 SIZE_GROUPS = tuple(size_group((0, 0, 0, h)) for h in (0.0, *SIZE_BANDS_PX))
 
+STANDING_MPS = 0.3
+"""Slower than this on the ground is standing: the generator's walkers go 0.9-1.6 m/s, its
+standing people 0 (a background model primed with them in view cannot see them: issue 21 asks
+for their recall by name)."""
+MOTION_GROUPS = (f"standing (< {STANDING_MPS:g} m/s)", "moving")
+
+
+def motion_groups(truth: TruthBox) -> tuple[str, ...]:
+    """A truth box's group by its ground speed: standing or moving (none where it is unknown)."""
+    if not np.isfinite(truth.speed_mps):
+        return ()
+    return (MOTION_GROUPS[0] if truth.speed_mps < STANDING_MPS else MOTION_GROUPS[1],)
+
 
 def scene_groups(run: SequenceRun) -> tuple[str, str, str]:
     """The groups a whole sequence belongs to: camera height, weather, time of day."""
@@ -452,8 +465,8 @@ CONSTANTS = MissConstants()
 
 
 def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: float = 0.0) -> dict[str, dict]:
-    """Every required truth box, by what became of it, per group (class, box height, time of day,
-    weather, camera height): tracked (a track box at IoU >= 0.5); detected but no track there;
+    """Every required truth box, by what became of it, per group (class, box height, standing or
+    moving, time of day, weather, camera height): tracked (a track box at IoU >= 0.5); detected but no track there;
     its detection merged with other objects; its detection's box off (IoU 0.2-0.5); not detected.
 
     It says where the missing HOTA is: in detection (the height map and the foreground) or in
@@ -485,7 +498,8 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
                     kind = "merged with others" if (cover > CONSTANTS.miss_cover_share).sum() >= 2 else "box off"
                 else:
                     kind = "not detected"
-                for group in ("all", f"class {truth.cls}", size_group(truth.box), *scene_groups(run)):
+                for group in ("all", f"class {truth.cls}", size_group(truth.box), *motion_groups(truth),
+                              *scene_groups(run)):
                     counts[group][kind] += 1
     return {group: {kind: int(c[kind]) for kind in MISS_KINDS} for group, c in counts.items()}
 
@@ -527,7 +541,7 @@ def frame_detection_counts(truth: list[TruthBox], detections: list[DetectionBox]
     correct, correct_cls = {c for _, c in pairs}, {c for _, c in same_class}
     counts: dict[str, Counter] = defaultdict(Counter)
     for i, t in enumerate(cared):
-        for group in ("all", f"class {t.cls}", size_group(t.box)):
+        for group in ("all", f"class {t.cls}", size_group(t.box), *motion_groups(t)):
             counts[group].update(truths=1, found=int(i in found), found_class=int(i in found_cls))
     for j, d in enumerate(detections):
         for group in ("all", f"class {d.cls}", size_group(d.box)):
@@ -541,8 +555,9 @@ def _share(part: int, whole: int) -> float | None:
 
 def detection_scores(runs: list[SequenceRun], min_visibility: float, min_box_px: float = 0.0) -> dict[str, dict]:
     """Recall and precision of the detections (before tracking), per group: all; class (person,
-    cyclist, vehicle); box height band; and, sequence by sequence, camera height, weather, time
-    of day (the groups of the HOTA table).
+    cyclist, vehicle); box height band; standing or moving (recall only: a detection has no
+    speed); and, sequence by sequence, camera height, weather, time of day (the groups of the
+    HOTA table).
 
     ``recall`` = required truth boxes matched / required truth boxes, ``precision`` = detections
     matched / detections; ``class_recall`` and ``class_precision`` the same when a match needs the
@@ -563,12 +578,12 @@ def detection_scores(runs: list[SequenceRun], min_visibility: float, min_box_px:
 
     def order(group: str) -> tuple:
         classes = [f"class {c}" for c in EVAL_CLASSES]
-        for rank, known in enumerate((["all"], classes, list(SIZE_GROUPS))):
+        for rank, known in enumerate((["all"], classes, list(SIZE_GROUPS), list(MOTION_GROUPS))):
             if group in known:
                 return rank, known.index(group), group
         if group.startswith("class "):
             return 1, len(classes), group
-        return 3, 0, group
+        return 4, 0, group
 
     table = {}
     for group in sorted(totals, key=order):

@@ -40,6 +40,9 @@ class TruthBox:
     box: tuple[float, float, float, float]
     visibility: float
     height_m: float
+    speed_mps: float = float("nan")
+    """Ground speed around this frame (``ground_speeds``): tells a standing person from a walker;
+    NaN where the generator wrote no ground position."""
 
 
 @dataclass
@@ -102,6 +105,27 @@ class OracleHeights:
 
     def close(self) -> None:
         """Nothing to release (the Stage contract, core/stage.py)."""
+
+
+def ground_speeds(sequence, index: int) -> dict[int, float]:
+    """Each object's ground speed (m/s) at frame ``index``: its ground position's change from the
+    frame before to the frame after (one side at a sequence's ends); objects without a ground
+    position on either side are left out."""
+    def positions(i: int) -> dict[int, np.ndarray]:
+        if not 0 <= i < len(sequence):
+            return {}
+        return {o.id: np.asarray(o.ground_xy_m, dtype=float) for o in sequence.objects(i)
+                if np.all(np.isfinite(o.ground_xy_m))}
+
+    before, now, after = positions(index - 1), positions(index), positions(index + 1)
+    speeds = {}
+    for object_id in now:
+        first = before.get(object_id, now[object_id])
+        last = after.get(object_id, now[object_id])
+        frames = (object_id in before) + (object_id in after)
+        if frames:
+            speeds[object_id] = float(np.hypot(*(last - first)) / frames * sequence.meta.fps)
+    return speeds
 
 
 def dont_care_region(semantic: np.ndarray) -> np.ndarray | None:
@@ -245,9 +269,11 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
             for truth_frame, packet in backfilled(packets, lambda pair: pair[1], config.tracking.backfill):
                 if sink is not None:
                     sink.write(packet)
+                speeds = ground_speeds(sequence, packet.frame.index)
                 run.frames.append(FrameRecord(
                     truth=[TruthBox(o.id, eval_class(o.cls), tuple(map(float, o.box)),
-                                    float(o.visible_fraction), float(o.height_m))
+                                    float(o.visible_fraction), float(o.height_m),
+                                    speeds.get(o.id, float("nan")))
                            for o in sequence.objects(packet.frame.index)],
                     tracks=[OutputBox(t.track_id, tuple(map(float, t.box)), t.height_m, t.height_std_m,
                                       t.cls, t.height_source, t.updated)

@@ -248,7 +248,7 @@ class ObjectTracker:
         for col in leftover_detections[1]:
             self._start_track(detections[col])
         self._remove_duplicates()
-        return [t.to_track() for t in self.tracks]
+        return [_in_view(t.to_track(), frame_size) for t in self.tracks]
 
     def _remove_duplicates(self) -> None:
         """Two tracks on one object (a blob that split and merged again): the younger one goes.
@@ -543,6 +543,23 @@ def _channels_to_fuse(track: _TrackState, detection: Detection, boxed: bool,
     elif (not boxed or not chosen) and GEOMETRY in usable:
         chosen.append((GEOMETRY, usable[GEOMETRY]))
     return chosen + [(channel, m) for channel, m in usable.items() if channel not in (NETWORK, GEOMETRY, BOX)]
+
+
+def _in_view(track: Track, frame_size: tuple[int, int] | None) -> Track:
+    """The track with its box cut to the image: what it reports is the part of the object in view.
+
+    The filter keeps the whole box (an object leaving keeps its size and speed, and one coming
+    back in is met where it is expected); a box reported past the image edge (a car driving out
+    at the right, 114 px over on the traffic clip) is no place in the picture.
+    """
+    if frame_size is None:
+        return track
+    x, y, w, h = track.box
+    x0, y0 = min(max(x, 0.0), frame_size[0]), min(max(y, 0.0), frame_size[1])
+    x1, y1 = max(min(x + w, frame_size[0]), x0), max(min(y + h, frame_size[1]), y0)
+    if (x0, y0, x1 - x0, y1 - y0) == (x, y, w, h):
+        return track
+    return dataclasses.replace(track, box=(x0, y0, x1 - x0, y1 - y0))
 
 
 def _left_the_view(track: _TrackState, frame_size: tuple[int, int] | None) -> bool:

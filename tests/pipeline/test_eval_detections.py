@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -155,3 +156,40 @@ def test_the_report_prints_and_writes_the_detection_table():
     assert rows["class other"] == ["-", "0.000", "-", "0.000", "0", "1"]
     assert rows["weather rain"] == ["0.500", "0.500", "0.500", "0.500", "2", "2"]
     assert json.loads(json.dumps(report, default=json_default))["detection"]["box < 40 px"]["precision"] is None
+
+
+def test_standing_and_moving_people_get_their_own_recall():
+    """Issue 21 asks for standing people by name: a background model primed with them cannot see them."""
+    standing = dataclasses.replace(_truth(1, "person", 0.0), speed_mps=0.0)
+    standing_missed = dataclasses.replace(_truth(2, "person", 100.0), speed_mps=0.2)
+    walker = dataclasses.replace(_truth(3, "person", 200.0), speed_mps=1.3)
+    unknown = _truth(4, "person", 300.0)   # no ground position: in neither group
+    frame = FrameRecord([standing, standing_missed, walker, unknown], [],
+                        [_det("person", 0.0), _det("person", 200.0), _det("person", 300.0)])
+    table = detection_scores([SequenceRun("s", 5.0, "clear", "day", 10.0, [frame])], 0.3)
+    assert (table["standing (< 0.3 m/s)"]["truths"], table["standing (< 0.3 m/s)"]["found"]) == (2, 1)
+    assert (table["moving"]["truths"], table["moving"]["found"]) == (1, 1)
+    assert table["standing (< 0.3 m/s)"]["precision"] is None    # a detection has no speed
+    assert list(table).index("box 40-80 px") < list(table).index("standing (< 0.3 m/s)") < list(table).index("moving")
+
+
+def test_ground_speed_from_the_frames_before_and_after():
+    from types import SimpleNamespace
+
+    from pipeline.eval_sequences import ground_speeds
+
+    class Sequence:
+        meta = SimpleNamespace(fps=10.0)
+
+        def __len__(self):
+            return 3
+
+        def objects(self, i):
+            walker = SimpleNamespace(id=1, ground_xy_m=(0.1 * i, 0.0))          # 1 m/s
+            still = SimpleNamespace(id=2, ground_xy_m=(5.0, 5.0))
+            unplaced = SimpleNamespace(id=3, ground_xy_m=(float("nan"), float("nan")))
+            return [walker, still, unplaced]
+
+    for index in range(3):   # both neighbours in the middle, one at either end
+        speeds = ground_speeds(Sequence(), index)
+        assert speeds[1] == pytest.approx(1.0) and speeds[2] == 0.0 and 3 not in speeds

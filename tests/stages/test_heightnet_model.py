@@ -169,3 +169,17 @@ def test_negative_threads_are_a_config_error(tiny_model):
 
     with pytest.raises(ConfigError, match="height.threads must be 0"):
         HeightNetModel(tiny_model, threads=-1)
+
+
+def test_most_threads_is_the_setting_or_the_larger_model_share_capped_to_the_cores(monkeypatch):
+    """What `heightpipe predict` and the side-by-side cameras ask for: ``threads = 0`` on one core
+    is one thread, not the two the v2 model would take on a larger machine."""
+    import stages.heightnet_model as heightnet_model
+    from stages.heightnet_model import most_threads
+
+    monkeypatch.setattr(heightnet_model.os, "sched_getaffinity", lambda _pid: {0, 1, 2, 3})
+    assert most_threads(0) == 2
+    assert most_threads(3) == 3
+    monkeypatch.setattr(heightnet_model.os, "sched_getaffinity", lambda _pid: {0})
+    assert most_threads(0) == 1
+    assert most_threads(3) == 3

@@ -107,6 +107,24 @@ def test_a_track_that_walks_out_of_the_frame_is_dropped_not_coasted():
     assert [len(blind.update([])) for _ in range(5)] == [1] * 5
 
 
+def test_a_box_reaching_past_the_image_is_reported_cut_to_it_while_the_filter_keeps_it_whole():
+    tracker = ObjectTracker(TrackingConfig(min_hits=3, max_misses=30))
+    frame_size = (320, 240)
+    # Walks right at 10 px/frame; its last box, x 290..320, touches the right edge.
+    for frame in range(10):
+        tracker.update([_detection(200 + 10 * frame, 100, 1.7)], frame_size=frame_size)
+    (track,) = tracker.update([], frame_size=frame_size)  # predicted at x 300..330
+    x, y, w, h = track.box
+    assert x == pytest.approx(300, abs=3) and x + w == 320 and (y, h) == pytest.approx((100, 80), abs=3)
+    filtered = tracker.tracks[0].motion.box
+    assert filtered[0] + filtered[2] > 325 and filtered[2] == pytest.approx(30, abs=3)
+    # Inside the image a box is reported as the filter has it.
+    inside = ObjectTracker(TrackingConfig(min_hits=3))
+    for frame in range(5):
+        (track,) = inside.update([_detection(100 + 5 * frame, 50, 1.7)], frame_size=frame_size)
+    assert track.box == tuple(inside.tracks[0].motion.box)
+
+
 def test_confirmation_and_coasting_are_durations_not_frame_counts():
     """0.2 s to confirm, 3 s of coasting: 2 and 30 frames at 10 fps, 5 and 75 at 25 fps."""
     config = TrackingConfig(min_hits=2, confirm_s=0.2, max_misses=30, max_miss_s=3.0)
