@@ -466,8 +466,9 @@ CONSTANTS = MissConstants()
 
 def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: float = 0.0) -> dict[str, dict]:
     """Every required truth box, by what became of it, per group (class, box height, standing or
-    moving, time of day, weather, camera height): tracked (a track box at IoU >= 0.5); detected but no track there;
-    its detection merged with other objects; its detection's box off (IoU 0.2-0.5); not detected.
+    moving, time of day, weather, camera height): tracked (a track box at IoU >= 0.5); detected
+    but no track there; its detection merged with other objects; its detection's box off (IoU
+    0.2-0.5); not detected.
 
     It says where the missing HOTA is: in detection (the height map and the foreground) or in
     tracking.
