@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import ctypes
 import os
+import pickle
 import queue
 import signal
 import socket
@@ -210,7 +211,8 @@ def _warm_up_imports() -> None:
 
 
 def _local_worker(slot: int, tasks, events, parent_pid: int) -> None:
-    """Worker process: take tasks from ``tasks`` until None, report on ``events``.
+    """Worker process: take tasks from ``tasks`` until None, report on ``events`` (this worker's
+    own pipe to the parent).
 
     Ctrl-C from the terminal reaches every process in the group; workers ignore it and wait
     for the parent's SIGTERM, which run_pipeline turns into a clean stop of the video. A
@@ -240,17 +242,15 @@ def _local_worker(slot: int, tasks, events, parent_pid: int) -> None:
                 return
 
             def report(frames, total, fps, source=task.source):
-                events.put((slot, WorkerStatus(slot, source, frames, total, fps)))
+                events.send((slot, WorkerStatus(slot, source, frames, total, fps)))
 
-            events.put((slot, WorkerStatus(slot, task.source)))
+            events.send((slot, WorkerStatus(slot, task.source)))
             result = process_video(task, report)
-            events.put((slot, result))
+            events.send((slot, result))
             if result.status == INTERRUPTED:
                 break
-    except StopRequested:
+    except (StopRequested, BrokenPipeError):   # stopped, or the parent is gone
         pass
-    if os.getppid() != parent_pid:
-        events.cancel_join_thread()  # nobody will read what is still buffered: do not wait on it
 
 
 @contextmanager
@@ -270,6 +270,11 @@ class _Slot:
     process: object
     tasks: object
     """This worker's own task queue: the parent always knows which video a worker holds."""
+    events: object
+    """The read end of this worker's own pipe of statuses and results. Not one queue shared by
+    all workers: a worker killed while writing to a shared ``multiprocessing.Queue`` can leave
+    its lock taken, and every other worker then waits on it for ever (seen once in
+    ``tests/pipeline/test_batch.py::test_a_worker_that_dies_fails_only_its_video``)."""
     task: VideoTask | None = None
 
 
@@ -297,7 +302,6 @@ class _LocalRun:
         import multiprocessing
 
         self.context = multiprocessing.get_context("spawn")
-        self.events = self.context.Queue()
         self.workers = min(workers, len(tasks))
         self.pending = list(reversed(tasks))
         self.slots: dict[int, _Slot] = {}
@@ -311,10 +315,7 @@ class _LocalRun:
                 self._start_worker(slot_id)
             last_check = time.monotonic()
             while any(slot.task is not None for slot in self.slots.values()):
-                try:
-                    self._handle(*self.events.get(timeout=0.5))
-                except queue.Empty:
-                    pass
+                self._receive(timeout=0.5)
                 if time.monotonic() - last_check > 1.0:
                     last_check = time.monotonic()
                     self._replace_dead_workers()
@@ -326,12 +327,27 @@ class _LocalRun:
 
     def _start_worker(self, slot_id: int) -> None:
         task_queue = self.context.Queue()
+        events, worker_end = self.context.Pipe(duplex=False)
         process = self.context.Process(target=_local_worker, name=f"heightpipe-batch-{slot_id}", daemon=True,
-                                       args=(slot_id, task_queue, self.events, os.getpid()))
+                                       args=(slot_id, task_queue, worker_end, os.getpid()))
         with _sigint_ignored():  # inherited through exec: a Ctrl-C cannot hit the worker's start-up
             process.start()
-        self.slots[slot_id] = _Slot(process, task_queue)
+        worker_end.close()  # the worker holds the only write end: its death is the pipe's end
+        if slot_id in self.slots:
+            self.slots[slot_id].events.close()
+        self.slots[slot_id] = _Slot(process, task_queue, events)
         self._feed(self.slots[slot_id])
+
+    def _receive(self, timeout: float) -> None:
+        """Hand over what the workers sent, waiting up to ``timeout`` for the first of it."""
+        from multiprocessing.connection import wait
+
+        open_pipes = [slot.events for slot in self.slots.values() if not slot.events.closed]
+        for pipe in wait(open_pipes, timeout=timeout):
+            try:
+                self._handle(*pipe.recv())
+            except (EOFError, OSError, pickle.UnpicklingError):
+                pipe.close()   # its worker is gone (mid-message, perhaps): _replace_dead_workers knows
 
     def _feed(self, slot: _Slot) -> None:
         """Hand the next task to an idle worker, or None (its signal to exit) when none is left."""
@@ -349,11 +365,8 @@ class _LocalRun:
             self._feed(slot)
 
     def _drain(self) -> None:
-        while True:
-            try:
-                self._handle(*self.events.get_nowait())
-            except queue.Empty:
-                return
+        while any(not slot.events.closed and slot.events.poll() for slot in self.slots.values()):
+            self._receive(timeout=0.0)
 
     def _replace_dead_workers(self) -> None:
         if not any(slot.task is not None and slot.process.exitcode is not None for slot in self.slots.values()):
@@ -383,10 +396,7 @@ class _LocalRun:
                         os.kill(slot.process.pid, signal.SIGTERM)
             deadline = time.monotonic() + CONSTANTS.shutdown_timeout_s
             while any(slot.process.is_alive() for slot in self.slots.values()) and time.monotonic() < deadline:
-                try:
-                    self._handle(*self.events.get(timeout=0.1))
-                except queue.Empty:
-                    pass
+                self._receive(timeout=0.1)
             self._drain()
         finally:
             for slot in self.slots.values():

@@ -1,4 +1,5 @@
-"""What ``heightpipe eval-tracks`` prints and draws: the report table, the misses table, the height picture."""
+"""What ``heightpipe eval-tracks`` prints and draws: the report table, the misses and wrong-detection
+tables, the height picture."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.eval_metrics import MISS_KINDS, ObjectHeight, iou_matrix, object_heights
+from pipeline.eval_metrics import MISS_KINDS, WRONG_KINDS, ObjectHeight, iou_matrix, object_heights
 from pipeline.eval_sequences import SequenceRun
 
 
@@ -18,6 +19,18 @@ def format_misses(breakdown: dict[str, dict]) -> str:
         row = breakdown[group]
         total = max(sum(row.values()), 1)
         lines.append(f"    {group:<20}" + "".join(f"{row[kind] / total:20.2f}" for kind in MISS_KINDS)
+                     + f"   {sum(row.values()):5d}")
+    return "\n".join(lines)
+
+
+def format_wrong_detections(breakdown: dict[str, dict]) -> str:
+    """``eval_metrics.wrong_detection_breakdown`` as a table: shares of each group's wrong detections."""
+    lines = ["  wrong detections by what lies under them (share of the group's wrong detections):",
+             f"    {'group':<20}" + "".join(f"{kind:>28}" for kind in WRONG_KINDS) + "   wrong"]
+    for group in sorted(breakdown, key=lambda g: (g != "all", g)):
+        row = breakdown[group]
+        total = max(sum(row.values()), 1)
+        lines.append(f"    {group:<20}" + "".join(f"{row[kind] / total:28.2f}" for kind in WRONG_KINDS)
                      + f"   {sum(row.values()):5d}")
     return "\n".join(lines)
 

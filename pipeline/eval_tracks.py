@@ -13,7 +13,9 @@ the shipped network or, with ``--heights oracle``, from the ground-truth height 
 * Occlusions: objects hidden for a while and seen again, whether their track kept its id and
   its height.
 * Misses (``--misses``): every required box by what became of it (tracked, detected but not
-  tracked, merged with other objects, box off, not detected), per class, size and scene.
+  tracked, merged with other objects, box off, not detected), per class, size and scene; and
+  every wrong detection by what lies under it (only don't-care objects, several objects, a
+  required object with a box off, part of one, nothing).
 * Detections before tracking: recall and precision of object extraction's boxes (IoU 0.5), of
   any class and with the class right, per class, box height, camera height, weather and time of
   day, printed after the HOTA/IDF1 table and under "detection" in ``--json``.
@@ -42,7 +44,8 @@ from core.config import Config
 from core.errors import HeightpipeError
 from pipeline.eval_compare import check_comparable, compare_reports, format_comparison
 from pipeline.eval_metrics import evaluate
-from pipeline.eval_reports import format_misses, format_report, json_default, plot_height_series
+from pipeline.eval_reports import (format_misses, format_report, format_wrong_detections, json_default,
+                                   plot_height_series)
 from pipeline.eval_sequences import CAMERA_KNOWN, run_sequence
 
 
@@ -68,7 +71,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="objects matched in fewer frames are left out of the height errors")
     parser.add_argument("--misses", action="store_true",
                         help="also print why required objects were missed (not detected, merged, box off, "
-                             "detected but not tracked) per class, size, time of day, weather")
+                             "detected but not tracked) and what lies under wrong detections, per class, size, "
+                             "time of day, weather")
     parser.add_argument("--json", metavar="FILE", help="write the full report as JSON")
     parser.add_argument("--against", metavar="BASE_JSON",
                         help="another run's --json report on the same data: heights compared over the objects "
@@ -121,6 +125,7 @@ def main(args: argparse.Namespace, config: Config) -> int:
     print(format_report(report))
     if args.misses:
         print(format_misses(report["misses"]))
+        print(format_wrong_detections(report["wrong_detections"]))
     if base is not None:
         report["against"] = compare_reports(report, base)
         print(format_comparison(report["against"], args.against))

@@ -193,3 +193,32 @@ def test_ground_speed_from_the_frames_before_and_after():
     for index in range(3):   # both neighbours in the middle, one at either end
         speeds = ground_speeds(Sequence(), index)
         assert speeds[1] == pytest.approx(1.0) and speeds[2] == 0.0 and 3 not in speeds
+
+
+# truth: two required walkers side by side, one small (don't-care) walker far off
+WALKERS = [_truth(1, "person", 0.0), _truth(2, "person", 22.0),
+           TruthBox(3, "person", (300.0, 10.0, 5.0, 15.0), 1.0, 1.75)]
+
+
+@pytest.mark.parametrize("box, kind", [
+    ((500.0, 300.0, 20.0, 60.0), "on nothing"),
+    ((298.0, 8.0, 9.0, 20.0), "on don't-care objects only"),      # IoU 0.42 with the 5 x 15 px truth
+    ((-2.0, 45.0, 46.0, 70.0), "holds several objects"),
+    ((-15.0, 30.0, 40.0, 100.0), "off a required object"),         # covers walker 1, IoU 0.3
+    ((0.0, 50.0, 20.0, 18.0), "on part of an object"),             # walker 1's head and shoulders
+])
+def test_what_lies_under_a_wrong_detection(box, kind):
+    from pipeline.eval_metrics import wrong_detection_kind
+
+    assert wrong_detection_kind(box, WALKERS, min_visibility=0.3, min_box_px=20.0) == kind
+
+
+def test_wrong_detections_are_counted_per_group_and_correct_ones_left_out():
+    from pipeline.eval_metrics import wrong_detection_breakdown
+
+    frame = FrameRecord(WALKERS, [], [_det("person", 0.0), DetectionBox((500.0, 300.0, 20.0, 60.0), 1.7, "person"),
+                                      DetectionBox((-2.0, 45.0, 46.0, 70.0), 1.7, "vehicle")])
+    table = wrong_detection_breakdown([SequenceRun("s", 5.0, "rain", "night", 10.0, [frame])], 0.3, 20.0)
+    assert table["all"]["on nothing"] == 1 and table["all"]["holds several objects"] == 1
+    assert sum(table["all"].values()) == 2                 # the matched walker is not wrong
+    assert table["class vehicle"]["holds several objects"] == 1 and table["night"]["on nothing"] == 1
