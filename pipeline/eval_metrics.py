@@ -508,6 +508,18 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
     return {group: {kind: int(c[kind]) for kind in MISS_KINDS} for group, c in counts.items()}
 
 
+def scored_detections(truth: list[TruthBox], detections: list[DetectionBox], min_visibility: float,
+                      min_box_px: float = 0.0, region: np.ndarray | None = None):
+    """(required truth boxes, the detections that are scored, their one-to-one matches at IoU 0.5):
+    a detection that best explains a don't-care truth box, or lies unclaimed on the don't-care
+    ``region``, is neither correct nor wrong, as in the MOT metrics."""
+    cared = [t for t in truth if cared_for(t, min_visibility, min_box_px)]
+    ignored = [t for t in truth if not cared_for(t, min_visibility, min_box_px)]
+    drop = on_dont_care(cared, ignored, [d.box for d in detections], region)
+    detections = [d for i, d in enumerate(detections) if i not in drop]
+    return cared, detections, matched_at_iou([t.box for t in cared], [d.box for d in detections])
+
+
 WRONG_KINDS = ("on don't-care objects only", "holds several objects", "off a required object",
                "on part of an object", "on nothing")
 """What lies under a detection the detection table counts wrong (``wrong_detection_breakdown``)."""
@@ -557,11 +569,9 @@ def wrong_detection_breakdown(runs: list[SequenceRun], min_visibility: float,
     counts: dict[str, Counter] = defaultdict(Counter)
     for run in runs:
         for frame in run.frames:
-            cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
-            ignored = [t for t in frame.truth if not cared_for(t, min_visibility, min_box_px)]
-            drop = on_dont_care(cared, ignored, [d.box for d in frame.detections], frame.region)
-            detections = [d for i, d in enumerate(frame.detections) if i not in drop]
-            correct = {c for _, c in matched_at_iou([t.box for t in cared], [d.box for d in detections])}
+            _, detections, pairs = scored_detections(frame.truth, frame.detections, min_visibility,
+                                                     min_box_px, frame.region)
+            correct = {c for _, c in pairs}
             for j, detection in enumerate(detections):
                 if j in correct:
                     continue
@@ -593,11 +603,7 @@ def frame_detection_counts(truth: list[TruthBox], detections: list[DetectionBox]
     or lies unclaimed on the don't-care ``region``, is neither correct nor wrong, as in the MOT
     metrics.
     """
-    cared = [t for t in truth if cared_for(t, min_visibility, min_box_px)]
-    ignored = [t for t in truth if not cared_for(t, min_visibility, min_box_px)]
-    drop = on_dont_care(cared, ignored, [d.box for d in detections], region)
-    detections = [d for i, d in enumerate(detections) if i not in drop]
-    pairs = matched_at_iou([t.box for t in cared], [d.box for d in detections])
+    cared, detections, pairs = scored_detections(truth, detections, min_visibility, min_box_px, region)
     same_class = []
     for cls in sorted({t.cls for t in cared} & {d.cls for d in detections}):
         rows = [i for i, t in enumerate(cared) if t.cls == cls]
