@@ -13,24 +13,24 @@ from pipeline.eval_sequences import SequenceRun
 
 
 def format_misses(breakdown: dict[str, dict]) -> str:
-    lines = ["  required boxes by what became of them (share of the group's boxes):",
-             f"    {'group':<20}" + "".join(f"{kind:>20}" for kind in MISS_KINDS) + "   boxes"]
-    for group in sorted(breakdown, key=lambda g: (g != "all", g)):
-        row = breakdown[group]
-        total = max(sum(row.values()), 1)
-        lines.append(f"    {group:<20}" + "".join(f"{row[kind] / total:20.2f}" for kind in MISS_KINDS)
-                     + f"   {sum(row.values()):5d}")
-    return "\n".join(lines)
+    """``eval_metrics.miss_breakdown``: what became of each group's required boxes."""
+    return _shares_table("required boxes by what became of them (share of the group's boxes)",
+                         MISS_KINDS, breakdown, width=20, count="boxes")
 
 
 def format_wrong_detections(breakdown: dict[str, dict]) -> str:
-    """``eval_metrics.wrong_detection_breakdown`` as a table: shares of each group's wrong detections."""
-    lines = ["  wrong detections by what lies under them (share of the group's wrong detections):",
-             f"    {'group':<20}" + "".join(f"{kind:>28}" for kind in WRONG_KINDS) + "   wrong"]
+    """``eval_metrics.wrong_detection_breakdown``: what lies under each group's wrong detections."""
+    return _shares_table("wrong detections by what lies under them (share of the group's wrong detections)",
+                         WRONG_KINDS, breakdown, width=28, count="wrong")
+
+
+def _shares_table(title: str, kinds: tuple[str, ...], breakdown: dict[str, dict], width: int, count: str) -> str:
+    """One row per group ("all" first): the share of each kind, then the group's count."""
+    lines = [f"  {title}:", f"    {'group':<20}" + "".join(f"{kind:>{width}}" for kind in kinds) + f"   {count}"]
     for group in sorted(breakdown, key=lambda g: (g != "all", g)):
         row = breakdown[group]
         total = max(sum(row.values()), 1)
-        lines.append(f"    {group:<20}" + "".join(f"{row[kind] / total:28.2f}" for kind in WRONG_KINDS)
+        lines.append(f"    {group:<20}" + "".join(f"{row[kind] / total:{width}.2f}" for kind in kinds)
                      + f"   {sum(row.values()):5d}")
     return "\n".join(lines)
 
