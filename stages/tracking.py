@@ -554,24 +554,27 @@ def _in_view(track: Track, frame_size: tuple[int, int] | None) -> Track:
     """
     if frame_size is None:
         return track
-    x, y, w, h = track.box
-    x0, y0 = min(max(x, 0.0), frame_size[0]), min(max(y, 0.0), frame_size[1])
-    x1, y1 = max(min(x + w, frame_size[0]), x0), max(min(y + h, frame_size[1]), y0)
-    if (x0, y0, x1 - x0, y1 - y0) == (x, y, w, h):
-        return track
-    return dataclasses.replace(track, box=(x0, y0, x1 - x0, y1 - y0))
+    visible = _part_in_view(track.box, frame_size)
+    return track if visible == tuple(track.box) else dataclasses.replace(track, box=visible)
 
 
 def _left_the_view(track: _TrackState, frame_size: tuple[int, int] | None) -> bool:
     """Not seen this frame, and its predicted box lies mostly outside the image."""
     if track.updated or frame_size is None:
         return False
-    x, y, w, h = track.motion.box
+    _x, _y, w, h = track.motion.box
     if w <= 0 or h <= 0:
         return True
-    inside_w = max(0.0, min(x + w, frame_size[0]) - max(x, 0.0))
-    inside_h = max(0.0, min(y + h, frame_size[1]) - max(y, 0.0))
+    _x, _y, inside_w, inside_h = _part_in_view(track.motion.box, frame_size)
     return inside_w * inside_h / (w * h) < CONSTANTS.min_share_in_view
+
+
+def _part_in_view(box, frame_size: tuple[int, int]) -> tuple[float, float, float, float]:
+    """The part of a box (x, y, w, h) inside the image (0 wide or high where none is)."""
+    x, y, w, h = box
+    x0, y0 = min(max(x, 0.0), frame_size[0]), min(max(y, 0.0), frame_size[1])
+    x1, y1 = max(min(x + w, frame_size[0]), x0), max(min(y + h, frame_size[1]), y0)
+    return x0, y0, x1 - x0, y1 - y0
 
 
 def _box_agrees(track: _TrackState, detection: Detection) -> bool:
