@@ -459,6 +459,8 @@ class MissConstants:
     below the 0.5 a match needs, above what a neighbour's box reaches."""
     miss_cover_share: float = 0.3
     """A detection covering this share of another object's box holds that object too."""
+    min_seen_share: float = 0.05
+    """An object less visible than this is under no box (wholly hidden: nothing of it to hold)."""
     wrong_cover_share: float = 0.5
     """A wrong detection covering this share of an object's box is a box on that object (off, or
     on several); one covering less lies on part of it."""
@@ -487,7 +489,7 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
             outputs = [o for o in frame.tracks if o.updated]
             tracked = {r for r, _ in matched_at_iou([t.box for t in cared], [o.box for o in outputs])}
             detections = [d.box for d in frame.detections]
-            visible = [t.box for t in frame.truth if t.visibility > 0.05]
+            visible = [t.box for t in frame.truth if t.visibility > CONSTANTS.min_seen_share]
             near = iou_matrix([t.box for t in cared], detections) if detections else np.zeros((len(cared), 0))
             for i, truth in enumerate(cared):
                 best = int(np.argmax(near[i])) if near.shape[1] else -1
@@ -537,7 +539,7 @@ def wrong_detection_kind(detection_box, truth: list[TruthBox], min_visibility: f
     """
     from stages.association import intersection_matrix
 
-    visible = [t for t in truth if t.visibility > 0.05]
+    visible = [t for t in truth if t.visibility > CONSTANTS.min_seen_share]
     if not visible:
         return WRONG_KINDS[4]
     boxes = [t.box for t in visible]
