@@ -25,8 +25,13 @@ IDR (the share covered by the one track id assigned to each person, as IDF1 assi
 switches, and the people covered in at least 80 % of their frames. Recall only: some people at
 the frame's edges are not labelled, so a track without a label is not a false positive.
 
+With ``--misses``, what lies over the labelled person-frames no track box covers
+(:func:`uncovered_breakdown`, the rules of ``heightpipe eval-tracks --misses``): a track box
+holding several people, one that is off the person (and which of its edges is off the most: short
+of the feet, short of the crown, or off to a side), or none near.
+
     python -m bench.real_heights [--modes calibration,camera-height,self,scene] [--out runs/real_heights]
-                                 [--picture docs/oxford_heights.jpg [--picture-frame 60]]
+                                 [--picture docs/oxford_heights.jpg [--picture-frame 60]] [--misses]
 """
 
 from __future__ import annotations
@@ -49,6 +54,8 @@ PERSON_RANGE_M = (1.5, 2.1)
 MATCH_IOU = 0.3
 MOSTLY_TRACKED = 0.8
 MODES = ("calibration", "camera-height", "self", "scene")
+UNCOVERED_KINDS = ("covered", "under a box holding several", "box short of the feet", "box short of the crown",
+                   "box off to a side", "no track box near")
 
 
 @dataclass
@@ -75,6 +82,7 @@ class ModeResult:
     head_px: float = float("nan")
     foot_px: float = float("nan")
     identity: IdentityScores | None = None
+    uncovered: dict[str, int] | None = None
 
 
 @dataclass
@@ -172,6 +180,7 @@ def score(mode: str, tracks_csv: Path, undistorted: bool) -> ModeResult:
     if foot_errors:
         result.foot_px = float(np.median(foot_errors))
     result.identity = identity_scores(labels, by_frame)
+    result.uncovered = uncovered_breakdown(labels, by_frame)
     return result
 
 
@@ -214,6 +223,53 @@ def identity_scores(labels: dict[int, list[LabelledPerson]],
         id_switches=int(switches),
         mostly_tracked=sum(len(followed.get(p, [])) >= MOSTLY_TRACKED * frames_of[p] for p in people_ids),
         people=len(people_ids))
+
+
+def uncovered_breakdown(labels: dict[int, list[LabelledPerson]],
+                        by_frame: dict[int, list[dict]]) -> dict[str, int]:
+    """Labelled person-frames by what covers them (``UNCOVERED_KINDS``), against every confirmed
+    track box as :func:`identity_scores` matches them.
+
+    Not covered, a person is under a box holding several people when the best-overlapping track
+    box (IoU at least ``miss_near_iou``) covers ``miss_cover_share`` of two or more labelled
+    people, as ``heightpipe eval-tracks --misses`` tells merged boxes; else that box is off, named
+    by its edge furthest inside or outside the person's, as a share of the person's height: its
+    bottom above the feet, its top below the crown, or a side.
+    """
+    from pipeline.eval_metrics import CONSTANTS as MISS, matched_at_iou
+    from stages.association import intersection_matrix, iou_matrix
+
+    counts = dict.fromkeys(UNCOVERED_KINDS, 0)
+    for frame, people in labels.items():
+        boxes = [tuple(float(r[k]) for k in "xywh") for r in by_frame.get(frame, [])]
+        covered = {i for i, _ in matched_at_iou([p.box for p in people], boxes)} if boxes else set()
+        near = iou_matrix([p.box for p in people], boxes) if boxes else np.zeros((len(people), 0))
+        areas = np.array([p.box[2] * p.box[3] for p in people], dtype=float)
+        for i, person in enumerate(people):
+            best = int(np.argmax(near[i])) if near.shape[1] else -1
+            if i in covered:
+                kind = "covered"
+            elif best < 0 or near[i, best] < MISS.miss_near_iou:
+                kind = "no track box near"
+            elif ((intersection_matrix([p.box for p in people], [boxes[best]])[:, 0]
+                   / np.maximum(areas, 1e-9)) > MISS.miss_cover_share).sum() >= 2:
+                kind = "under a box holding several"
+            else:
+                kind = _off_edge(person.box, boxes[best])
+            counts[kind] += 1
+    return counts
+
+
+def _off_edge(label, box) -> str:
+    """Which edge of ``box`` is furthest off the labelled body box (x, y, w, h each)."""
+    x, y, w, h = label
+    bx, by, bw, bh = box
+    feet = (y + h) - (by + bh)                 # > 0: the box ends above the feet
+    crown = by - y                             # > 0: the box starts below the crown
+    side = max(abs(bx - x), abs((bx + bw) - (x + w)))
+    largest = max(feet, crown, side)
+    return ("box short of the feet" if largest == feet else
+            "box short of the crown" if largest == crown else "box off to a side")
 
 
 def run_mode(mode: str, out: Path, overrides: list[str]) -> ModeResult:
@@ -295,6 +351,19 @@ def format_table(results: list[ModeResult]) -> str:
     return "\n".join(lines)
 
 
+def format_uncovered(results: list[ModeResult]) -> str:
+    """Shares of the labelled person-frames by ``UNCOVERED_KINDS``, one row per mode."""
+    lines = ["| mode | " + " | ".join(UNCOVERED_KINDS) + " | person-frames |",
+             "|---" * (len(UNCOVERED_KINDS) + 2) + "|"]
+    for r in results:
+        if r.uncovered is None:
+            continue
+        total = max(sum(r.uncovered.values()), 1)
+        lines.append(f"| {r.mode} | " + " | ".join(f"{r.uncovered[k] / total:.3f}" for k in UNCOVERED_KINDS)
+                     + f" | {sum(r.uncovered.values())} |")
+    return "\n".join(lines)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--modes", default=",".join(MODES))
@@ -304,6 +373,8 @@ def main() -> int:
     parser.add_argument("--picture", type=Path, metavar="IMAGE",
                         help="also draw one frame of the calibration-mode run (tracks, heights, labels)")
     parser.add_argument("--picture-frame", type=int, default=60)
+    parser.add_argument("--misses", action="store_true",
+                        help="also what lies over the labelled person-frames no track box covers")
     args = parser.parse_args()
     if not VIDEO.is_file():
         print(f"bench.real_heights: {VIDEO} not found", file=sys.stderr)
@@ -313,6 +384,8 @@ def main() -> int:
     if args.picture and "calibration" in args.modes.split(","):
         draw_frame(args.out / "calibration.tracks.csv", args.picture_frame, args.picture)
     table = format_table(results)
+    if args.misses:
+        table += "\n\nLabelled person-frames by what covers them (shares):\n\n" + format_uncovered(results)
     (args.out / "table.md").write_text(table + "\n")
     print(table)
     return 0

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from bench.real_heights import LABELS, LabelledPerson, identity_scores, load_labels
+from bench.real_heights import (LABELS, UNCOVERED_KINDS, LabelledPerson, identity_scores, load_labels,
+                                 uncovered_breakdown)
 
 
 def person(pid: int, x: float) -> LabelledPerson:
@@ -34,6 +35,33 @@ def test_a_box_off_the_person_does_not_count():
     assert far.covered == 0.0 and far.id_recall == 0.0 and far.mostly_tracked == 0
     none = identity_scores(labels, {})
     assert none.covered == 0.0 and none.id_switches == 0
+
+
+def box_track(tid: str, x: float, y: float, w: float, h: float) -> dict:
+    return {"track_id": tid, "x": str(x), "y": str(y), "w": str(w), "h": str(h)}
+
+
+def test_uncovered_people_are_told_apart_by_what_lies_over_them():
+    # Body boxes 40 x 120 from y = 100: people at x = 100 and 130 walk together, one at 400 alone,
+    # one at 700 alone, one at 1000 with nothing near.
+    labels = {0: [person(0, 100.0), person(1, 130.0), person(2, 400.0), person(3, 700.0), person(4, 1000.0)]}
+    tracks = {0: [box_track("group", 98.0, 100.0, 74.0, 120.0),      # over persons 0 and 1
+                  box_track("chest", 400.0, 100.0, 40.0, 50.0),      # ends 70 px above person 2's feet
+                  box_track("whole", 701.0, 101.0, 39.0, 118.0)]}    # person 3, covered
+    counts = uncovered_breakdown(labels, tracks)
+    assert set(counts) == set(UNCOVERED_KINDS) and sum(counts.values()) == 5
+    assert counts["covered"] == 2            # person 3, and one of the pair by the group's box (IoU >= 0.5)
+    assert counts["under a box holding several"] == 1
+    assert counts["box short of the feet"] == 1
+    assert counts["no track box near"] == 1
+
+
+def test_a_box_below_the_crown_or_beside_the_person_is_named_by_that_edge():
+    labels = {0: [person(0, 100.0), person(1, 400.0)]}
+    tracks = {0: [box_track("low", 100.0, 170.0, 40.0, 50.0),         # starts 70 px below the crown
+                  box_track("wide", 400.0, 100.0, 110.0, 120.0)]}     # 70 px past the right side
+    counts = uncovered_breakdown(labels, tracks)
+    assert counts["box short of the crown"] == 1 and counts["box off to a side"] == 1
 
 
 @pytest.mark.skipif(not LABELS.is_file(), reason="needs ../shared/real/oxford_towncentre")
