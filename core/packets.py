@@ -268,6 +268,9 @@ class Track:
     age: int = 0
     updated: bool = True
     """Whether a detection was associated this frame (else the box is predicted)."""
+    foot_in_view: bool = True
+    """False where the object reaches past the image's bottom edge: ``box`` is cut there, and its
+    bottom is the frame's edge, not where the object stands."""
 
 
 @dataclass

@@ -6,6 +6,8 @@ runs after tracking and looks at every confirmed track:
 
     condition = class matches, height known and in range (and settled: std <= max_std_m),
                 foot point (bottom centre of the box, or the ground position) inside the zone
+                (an image zone holds no track whose box the frame's bottom edge cuts: its foot
+                is out of the picture)
 
 A rule fires for a track once the condition has held for ``min_frames`` processed frames in a
 row and ``min_duration_s`` of source time. It then stays quiet for that track while the
@@ -161,6 +163,8 @@ class HeightRules:
             return True
         if rule.zone_frame == "ground":
             return track.ground_xy_m is not None and inside_polygon(track.ground_xy_m, zone)
+        if not track.foot_in_view:     # the foot is below the picture: in no zone drawn on it
+            return False
         foot = foot_point(track)
         return inside_polygon(frame.to_source(foot) if frame is not None else foot, zone)
 

@@ -550,12 +550,16 @@ def _in_view(track: Track, frame_size: tuple[int, int] | None) -> Track:
 
     The filter keeps the whole box (an object leaving keeps its size and speed, and one coming
     back in is met where it is expected); a box reported past the image edge (a car driving out
-    at the right, 114 px over on the traffic clip) is no place in the picture.
+    at the right, 114 px over on the traffic clip) is no place in the picture. One cut at the
+    bottom says so (``Track.foot_in_view``): its bottom is the frame's edge, not the object's foot.
     """
     if frame_size is None:
         return track
     visible = _part_in_view(track.box, frame_size)
-    return track if visible == tuple(track.box) else dataclasses.replace(track, box=visible)
+    if visible == tuple(track.box):
+        return track
+    foot_in_view = track.box[1] + track.box[3] <= frame_size[1]
+    return dataclasses.replace(track, box=visible, foot_in_view=foot_in_view)
 
 
 def _left_the_view(track: _TrackState, frame_size: tuple[int, int] | None) -> bool:

@@ -23,8 +23,9 @@ def packet(index: int, tracks: list[Track]) -> FramePacket:
 
 def track(track_id: int = 1, height: float = 4.0, std: float = 0.05, cls: str = "vehicle",
           box=(150.0, 250.0, 40.0, 100.0), confirmed: bool = True, updated: bool = True,
-          ground=None) -> Track:
-    return Track(track_id, box, cls, height, std, confirmed=confirmed, updated=updated, ground_xy_m=ground)
+          ground=None, foot_in_view: bool = True) -> Track:
+    return Track(track_id, box, cls, height, std, confirmed=confirmed, updated=updated, ground_xy_m=ground,
+                 foot_in_view=foot_in_view)
 
 
 def run(rules: list[RuleConfig], frames: list[list[Track]], calibrated: bool = False) -> list[tuple[int, str, int]]:
@@ -53,6 +54,7 @@ def test_fires_once_after_min_frames_and_duration_and_not_again_without_cooldown
     ({"confirmed": False}, False),                # tentative tracks never fire
     ({"std": 0.5}, False),                        # not settled (max_std_m = 0.2)
     ({"box": (400.0, 250.0, 40.0, 100.0)}, False),  # foot point outside the lane
+    ({"box": (150.0, 300.0, 40.0, 100.0), "foot_in_view": False}, False),  # cut by the frame: foot below it
 ])
 def test_condition(change, fires):
     rule = RuleConfig(name="tall", cls="vehicle", min_height_m=3.8, max_std_m=0.2, zone=LANE)

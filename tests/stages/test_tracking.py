@@ -118,11 +118,25 @@ def test_a_box_reaching_past_the_image_is_reported_cut_to_it_while_the_filter_ke
     assert x == pytest.approx(300, abs=3) and x + w == 320 and (y, h) == pytest.approx((100, 80), abs=3)
     filtered = tracker.tracks[0].motion.box
     assert filtered[0] + filtered[2] > 325 and filtered[2] == pytest.approx(30, abs=3)
+    assert track.foot_in_view, "cut at the right, its bottom is still where it stands"
     # Inside the image a box is reported as the filter has it.
     inside = ObjectTracker(TrackingConfig(min_hits=3))
     for frame in range(5):
         (track,) = inside.update([_detection(100 + 5 * frame, 50, 1.7)], frame_size=frame_size)
-    assert track.box == tuple(inside.tracks[0].motion.box)
+    assert track.box == tuple(inside.tracks[0].motion.box) and track.foot_in_view
+
+
+def test_a_box_cut_by_the_bottom_edge_says_its_foot_is_out_of_view():
+    tracker = ObjectTracker(TrackingConfig(min_hits=3, max_misses=30))
+    frame_size = (320, 240)
+    # Walks down at 8 px/frame; boxes 80 px tall, the last one ending at y 232.
+    for frame in range(10):
+        tracker.update([_detection(100, 80 + 8 * frame, 1.7)], frame_size=frame_size)
+    (track,) = tracker.update([], frame_size=frame_size)  # predicted to end at ~y 240
+    for _ in range(2):
+        (track,) = tracker.update([], frame_size=frame_size)  # ... then past the bottom
+    x, y, w, h = track.box
+    assert y + h == 240 and not track.foot_in_view
 
 
 def test_confirmation_and_coasting_are_durations_not_frame_counts():
