@@ -236,23 +236,21 @@ def uncovered_breakdown(labels: dict[int, list[LabelledPerson]],
     by its edge furthest inside or outside the person's, as a share of the person's height: its
     bottom above the feet, its top below the crown, or a side.
     """
-    from pipeline.eval_metrics import CONSTANTS as MISS, matched_at_iou
-    from stages.association import intersection_matrix, iou_matrix
+    from pipeline.eval_metrics import CONSTANTS as MISS, holds_several, matched_at_iou
+    from stages.association import iou_matrix
 
     counts = dict.fromkeys(UNCOVERED_KINDS, 0)
     for frame, people in labels.items():
         boxes = [tuple(float(r[k]) for k in "xywh") for r in by_frame.get(frame, [])]
         covered = {i for i, _ in matched_at_iou([p.box for p in people], boxes)} if boxes else set()
         near = iou_matrix([p.box for p in people], boxes) if boxes else np.zeros((len(people), 0))
-        areas = np.array([p.box[2] * p.box[3] for p in people], dtype=float)
         for i, person in enumerate(people):
             best = int(np.argmax(near[i])) if near.shape[1] else -1
             if i in covered:
                 kind = "covered"
             elif best < 0 or near[i, best] < MISS.miss_near_iou:
                 kind = "no track box near"
-            elif ((intersection_matrix([p.box for p in people], [boxes[best]])[:, 0]
-                   / np.maximum(areas, 1e-9)) > MISS.miss_cover_share).sum() >= 2:
+            elif holds_several([p.box for p in people], boxes[best]):
                 kind = "under a box holding several"
             else:
                 kind = _off_edge(person.box, boxes[best])

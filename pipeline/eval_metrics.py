@@ -469,6 +469,20 @@ class MissConstants:
 CONSTANTS = MissConstants()
 
 
+def covered_shares(boxes, box) -> np.ndarray:
+    """The share of each of ``boxes`` (x, y, w, h) that ``box`` covers."""
+    from stages.association import intersection_matrix
+
+    areas = np.array([b[2] * b[3] for b in boxes], dtype=float)
+    return intersection_matrix(boxes, [box])[:, 0] / np.maximum(areas, 1e-9)
+
+
+def holds_several(boxes, box) -> bool:
+    """Whether ``box`` covers ``CONSTANTS.miss_cover_share`` of two or more of ``boxes``: one box
+    over a group, not on any one of them."""
+    return int((covered_shares(boxes, box) > CONSTANTS.miss_cover_share).sum()) >= 2
+
+
 def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: float = 0.0) -> dict[str, dict]:
     """Every required truth box, by what became of it, per group (class, box height, standing or
     moving, time of day, weather, camera height): tracked (a track box at IoU >= 0.5); detected
@@ -478,8 +492,6 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
     It says where the missing HOTA is: in detection (the height map and the foreground) or in
     tracking.
     """
-    from stages.association import intersection_matrix
-
     counts: dict[str, Counter] = defaultdict(Counter)
     for run in runs:
         for frame in run.frames:
@@ -499,9 +511,7 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
                 elif overlap >= MATCH_IOU:
                     kind = "detected, no track"
                 elif overlap >= CONSTANTS.miss_near_iou:
-                    areas = np.array([b[2] * b[3] for b in visible], dtype=float)
-                    cover = intersection_matrix(visible, [detections[best]])[:, 0] / np.maximum(areas, 1e-9)
-                    kind = "merged with others" if (cover > CONSTANTS.miss_cover_share).sum() >= 2 else "box off"
+                    kind = "merged with others" if holds_several(visible, detections[best]) else "box off"
                 else:
                     kind = "not detected"
                 for group in ("all", f"class {truth.cls}", size_group(truth.box), *motion_groups(truth),
@@ -537,15 +547,11 @@ def wrong_detection_kind(detection_box, truth: list[TruthBox], min_visibility: f
     hidden walker's visible half rarely reaches. Else it holds several objects, covers one
     required object with a box too big or shifted, or lies on part of one; or on nothing.
     """
-    from stages.association import intersection_matrix
-
     visible = [t for t in truth if t.visibility > CONSTANTS.min_seen_share]
     if not visible:
         return WRONG_KINDS[4]
     boxes = [t.box for t in visible]
-    areas = np.array([b[2] * b[3] for b in boxes], dtype=float)
-    share = intersection_matrix(boxes, [detection_box])[:, 0] / np.maximum(areas, 1e-9)
-    covered = share >= CONSTANTS.wrong_cover_share
+    covered = covered_shares(boxes, detection_box) >= CONSTANTS.wrong_cover_share
     under = covered | (iou_matrix(boxes, [detection_box])[:, 0] >= CONSTANTS.miss_near_iou)
     if not under.any():
         return WRONG_KINDS[4]
