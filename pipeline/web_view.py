@@ -138,14 +138,18 @@ class WebViewer:
         raise HeightpipeError(f"the rerun web viewer server did not start within {CONSTANTS.start_timeout_s:.0f} s")
 
     def wait_for_ctrl_c(self) -> None:
-        """Keeps serving (the finished recording stays viewable) until Ctrl-C or SIGTERM."""
-        print(f"heightpipe: still serving the web viewer at {self.page_url} - Ctrl-C to stop",
-              file=sys.stderr, flush=True)
+        """Keeps serving (the finished recording stays viewable) until Ctrl-C or SIGTERM.
+
+        The "Ctrl-C to stop" line is printed inside the guarded block: a Ctrl-C that comes as
+        soon as it is read must end the wait, not the run with "interrupted".
+        """
         def stop_waiting(_signum, _frame):
             raise KeyboardInterrupt
 
         previous = signal.signal(signal.SIGTERM, stop_waiting)
         try:
+            print(f"heightpipe: still serving the web viewer at {self.page_url} - Ctrl-C to stop",
+                  file=sys.stderr, flush=True)
             while self._process.poll() is None:
                 time.sleep(0.5)
         except KeyboardInterrupt:
