@@ -148,6 +148,14 @@ class ObjectsConfig:
     keep_motion_blobs: bool = False
     """Network mode: a moving blob that no network box covers is an object too (its class from its
     shape); without it only blobs a quarter of the frame tall or taller are (the head misses most of those)."""
+    vehicle_height_percentile: float = 80.0
+    """Network mode: a box the network calls a vehicle reads its height at this percentile of its
+    pixels above the ground (+ half a row), not at ``height_percentile``. A vehicle's top is a
+    roof of hundreds of pixels at one height; the highest of v2's scattered decoded heights there
+    overshoots it: held-out tracked vehicles read 24-31 cm high at 100, 15-23 at 80 (people's and
+    cyclists' boxes keep ``height_percentile``: their top is a head a few pixels wide; below 80 a
+    box's roof is too small a share of it and single frames read low: docs/results.md, 2026-12-05
+    twenty-first session)."""
     background: str = "knn"
     """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
     work_width: int = 480
@@ -599,7 +607,8 @@ MOVED_KEYS = {("tracking", name): "objects" for name in (
 """(old section, key) -> the section that holds the key now (object extraction left [tracking];
 keys added to [objects] since were never in [tracking])."""
 NETWORK_OBJECTS_KEYS = ("score_person", "score_cyclist", "score_vehicle", "score_motion", "moving_share",
-                        "motion_contrast", "continue_score", "motion_ends", "keep_motion_blobs")
+                        "motion_contrast", "continue_score", "motion_ends", "keep_motion_blobs",
+                        "vehicle_height_percentile")
 """[objects] keys that only ``source = "network"`` reads."""
 
 

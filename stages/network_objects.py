@@ -80,13 +80,16 @@ def min_score(config: ObjectsConfig) -> float:
 
 
 def check_config(config: ObjectsConfig) -> None:
-    """ConfigError for a source or a score that cannot work."""
+    """ConfigError for a source, a score or a height percentile that cannot work."""
     if config.source not in SOURCES:
         raise ConfigError(f"objects.source must be one of {', '.join(SOURCES)}, got {config.source!r}")
     for key in [*(CLASS_PREFIX + cls for cls in class_thresholds(config)), "score_motion", "moving_share",
                 "motion_contrast", "continue_score"]:
         if not 0.0 <= getattr(config, key) <= 1.0:
             raise ConfigError(f"objects.{key} must be between 0 and 1, got {getattr(config, key)}")
+    if not 0.0 < config.vehicle_height_percentile <= 100.0:
+        raise ConfigError(f"objects.vehicle_height_percentile must be above 0 and at most 100, "
+                          f"got {config.vehicle_height_percentile}")
 
 
 def check_classes(config: ObjectsConfig, classes: tuple[str, ...] | list[str], model: str) -> None:
@@ -141,7 +144,8 @@ def network_objects(found: NetworkDetections | None, config: ObjectsConfig, heig
         ends = clipped[[1, 3]]
         if config.motion_ends and foreground is not None:
             ends = motion_ends(foreground, clipped)[[1, 3]]
-        detection = _measure_box(clipped, (x0, y0, x1, y1), ends, own, height_map, edge, config)
+        percentile = config.vehicle_height_percentile if cls == "vehicle" else config.height_percentile
+        detection = _measure_box(clipped, (x0, y0, x1, y1), ends, own, height_map, edge, config, percentile)
         detection.score = float(score)
         detection.continues_only = weak
         detection.classify(cls, NETWORK)
@@ -268,9 +272,11 @@ def _moving(foreground: np.ndarray | None, corners: tuple[int, int, int, int], o
 
 
 def _measure_box(box: np.ndarray, corners: tuple[int, int, int, int], ends: np.ndarray, own: np.ndarray,
-                 height_map: np.ndarray | None, edge: np.ndarray, config: ObjectsConfig) -> Detection:
-    """The detection of one kept box: the pixels it covers, its cuts, its height, and its geometry
-    points at the rows ``ends`` (top, bottom: the box's own, or where its motion ends)."""
+                 height_map: np.ndarray | None, edge: np.ndarray, config: ObjectsConfig,
+                 percentile: float) -> Detection:
+    """The detection of one kept box: the pixels it covers, its cuts, its height (``percentile``
+    of its own pixels, ``robust_top``), and its geometry points at the rows ``ends`` (top, bottom:
+    the box's own, or where its motion ends)."""
     x0, y0, x1, y1 = corners
     centre_x = float(box[0] + box[2]) / 2.0
     at_edge = edge[y0:y1, x0:x1]
@@ -285,7 +291,7 @@ def _measure_box(box: np.ndarray, corners: tuple[int, int, int, int], ends: np.n
     measured = {}
     if height_map is not None:
         heights = height_map[y0:y1, x0:x1]
-        height_m = robust_top(heights, own, config.height_percentile)
+        height_m = robust_top(heights, own, percentile)
         if config.min_object_height_m <= height_m <= config.max_object_height_m:
             noise_m = height_noise(config.height_measurement_noise_m, height_m, float(y1 - y0), touches_border)
             foot_cut = foot_cut or foot_above_ground(heights, own, np.flatnonzero(own.any(axis=1)), height_m)

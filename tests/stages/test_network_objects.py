@@ -246,6 +246,24 @@ def test_the_height_comes_from_the_box_pixels_above_the_ground():
     assert not (detection.touches_border or detection.foot_cut or detection.top_cut)
 
 
+def test_a_vehicle_reads_its_roof_not_the_highest_of_its_scattered_roof_pixels():
+    """v2's decoded heights scatter around a flat roof; the maximum of hundreds of them overshoots it."""
+    heights = np.zeros((HEIGHT, WIDTH), np.float32)
+    rng = np.random.default_rng(3)
+    heights[100:120, 100:180] = 1.50 + rng.normal(0.0, 0.05, (20, 80))      # the roof, seen from above
+    heights[120:150, 100:180] = np.linspace(1.0, 0.05, 30, dtype=np.float32)[:, None]   # its side
+    box = (100.0, 100.0, 180.0, 150.0)
+
+    def read(cls, **keys):
+        config = dataclasses.replace(NETWORK_MODE, **keys)
+        (detection,) = network_objects(found((cls, 0.9, box)), config, 0.1, heights, heights < 0.1, None, EDGE)
+        return detection.height()
+
+    assert read("vehicle") == pytest.approx(1.50, abs=0.04)                # the default: the 80th percentile
+    assert read("vehicle", vehicle_height_percentile=100.0) > 1.60          # the maximum overshoots the roof
+    assert read("person") == read("vehicle", vehicle_height_percentile=100.0)   # other classes: height_percentile
+
+
 def test_a_box_with_no_height_above_the_ground_is_an_object_without_a_height():
     (detection,) = measure((200, 150, 230, 200))                # nothing above the ground there
     assert detection.heights == {} and detection.cls == "cyclist"
@@ -347,6 +365,9 @@ def test_thresholds_come_from_the_config_and_bad_values_are_errors(tmp_path):
         ObjectExtractor(ObjectsConfig(source="detector"), GroundConfig())
     with pytest.raises(ConfigError, match="objects.score_vehicle"):
         ObjectExtractor(ObjectsConfig(source="network", score_vehicle=1.5), GroundConfig())
+    for bad in (0.0, 101.0):
+        with pytest.raises(ConfigError, match="objects.vehicle_height_percentile must be above 0 and at most 100"):
+            ObjectExtractor(ObjectsConfig(source="network", vehicle_height_percentile=bad), GroundConfig())
     with pytest.raises(ConfigError, match="score_bus"):
         check_classes(NETWORK_MODE, ["person", "bus"], "model.onnx")
 
