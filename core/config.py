@@ -152,10 +152,10 @@ class ObjectsConfig:
     """Network mode: a box the network calls a vehicle reads its height at this percentile of its
     pixels above the ground (+ half a row), not at ``height_percentile``. A vehicle's top is a
     roof of hundreds of pixels at one height; the highest of v2's scattered decoded heights there
-    overshoots it: held-out tracked vehicles read 24-31 cm high at 100, 15-23 at 80 (people's and
-    cyclists' boxes keep ``height_percentile``: their top is a head a few pixels wide; below 80 a
-    box's roof is too small a share of it and single frames read low: docs/results.md, 2026-12-05
-    twenty-first session)."""
+    overshoots it: held-out tracked vehicles read 24-31 cm high at 100, 14-16 cm off (median bias
+    -2 to -6 cm) at 80 (people's and cyclists' boxes keep ``height_percentile``: their top is a
+    head a few pixels wide; below 80 a box's roof is too small a share of it and single frames
+    read low: docs/results.md, 2026-12-05 twenty-first session)."""
     background: str = "knn"
     """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
     work_width: int = 480

@@ -306,6 +306,9 @@ def _measure_box(box: np.ndarray, corners: tuple[int, int, int, int], ends: np.n
         touches_border=touches_border,
         foot_cut=foot_cut,
         top_cut=top_cut,
+        # No outline (no vehicle box, channel BOX): a box's pixels above the ground are not the
+        # object's silhouette, they hold whatever stands in the box beside it; fused, the box fitted
+        # to them put v2's tracked vehicles' median bias 19-25 cm higher (docs/results.md,
+        # 2026-12-05 twenty-first session). Blobs keep theirs: a foreground silhouette.
         mask=own,
-        outline=own,
     )

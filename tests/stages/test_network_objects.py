@@ -264,6 +264,13 @@ def test_a_vehicle_reads_its_roof_not_the_highest_of_its_scattered_roof_pixels()
     assert read("person") == read("vehicle", vehicle_height_percentile=100.0)   # other classes: height_percentile
 
 
+def test_a_network_box_has_no_outline_for_the_vehicle_box():
+    """Its pixels above the ground hold whatever stands in the box, not a silhouette: the vehicle
+    box (channel BOX) is fitted to blobs' outlines only."""
+    (detection,) = measure(box_of(STANDER), cls="vehicle", wall=True)
+    assert detection.outline is None and detection.mask.any()
+
+
 def test_a_box_with_no_height_above_the_ground_is_an_object_without_a_height():
     (detection,) = measure((200, 150, 230, 200))                # nothing above the ground there
     assert detection.heights == {} and detection.cls == "cyclist"
