@@ -242,15 +242,16 @@ def uncovered_breakdown(labels: dict[int, list[LabelledPerson]],
     counts = dict.fromkeys(UNCOVERED_KINDS, 0)
     for frame, people in labels.items():
         boxes = [tuple(float(r[k]) for k in "xywh") for r in by_frame.get(frame, [])]
-        covered = {i for i, _ in matched_at_iou([p.box for p in people], boxes)} if boxes else set()
-        near = iou_matrix([p.box for p in people], boxes) if boxes else np.zeros((len(people), 0))
+        bodies = [p.box for p in people]
+        covered = {i for i, _ in matched_at_iou(bodies, boxes)} if boxes else set()
+        near = iou_matrix(bodies, boxes) if boxes else np.zeros((len(people), 0))
         for i, person in enumerate(people):
             best = int(np.argmax(near[i])) if near.shape[1] else -1
             if i in covered:
                 kind = "covered"
             elif best < 0 or near[i, best] < MISS.miss_near_iou:
                 kind = "no track box near"
-            elif holds_several([p.box for p in people], boxes[best]):
+            elif holds_several(bodies, boxes[best]):
                 kind = "under a box holding several"
             else:
                 kind = _off_edge(person.box, boxes[best])
