@@ -80,16 +80,17 @@ def min_score(config: ObjectsConfig) -> float:
 
 
 def check_config(config: ObjectsConfig) -> None:
-    """ConfigError for a source, a score or a height percentile that cannot work."""
+    """ConfigError for a source, a score or a height percentile that cannot work (both modes: the
+    extractor checks its whole section)."""
     if config.source not in SOURCES:
         raise ConfigError(f"objects.source must be one of {', '.join(SOURCES)}, got {config.source!r}")
     for key in [*(CLASS_PREFIX + cls for cls in class_thresholds(config)), "score_motion", "moving_share",
                 "motion_contrast", "continue_score"]:
         if not 0.0 <= getattr(config, key) <= 1.0:
             raise ConfigError(f"objects.{key} must be between 0 and 1, got {getattr(config, key)}")
-    if not 0.0 < config.vehicle_height_percentile <= 100.0:
-        raise ConfigError(f"objects.vehicle_height_percentile must be above 0 and at most 100, "
-                          f"got {config.vehicle_height_percentile}")
+    for key in ("height_percentile", "vehicle_height_percentile"):
+        if not 0.0 < getattr(config, key) <= 100.0:
+            raise ConfigError(f"objects.{key} must be above 0 and at most 100, got {getattr(config, key)}")
 
 
 def check_classes(config: ObjectsConfig, classes: tuple[str, ...] | list[str], model: str) -> None:

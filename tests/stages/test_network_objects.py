@@ -375,6 +375,10 @@ def test_thresholds_come_from_the_config_and_bad_values_are_errors(tmp_path):
     for bad in (0.0, 101.0):
         with pytest.raises(ConfigError, match="objects.vehicle_height_percentile must be above 0 and at most 100"):
             ObjectExtractor(ObjectsConfig(source="network", vehicle_height_percentile=bad), GroundConfig())
+    for bad in (-5.0, 0.0, 150.0):   # both modes read it (it used to take -5 and pick an arbitrary pixel)
+        for source in ("blobs", "network"):
+            with pytest.raises(ConfigError, match="objects.height_percentile must be above 0 and at most 100"):
+                ObjectExtractor(ObjectsConfig(source=source, height_percentile=bad), GroundConfig())
     with pytest.raises(ConfigError, match="score_bus"):
         check_classes(NETWORK_MODE, ["person", "bus"], "model.onnx")
 
