@@ -155,7 +155,9 @@ class ObjectsConfig:
     overshoots it: held-out tracked vehicles read 24-31 cm high at 100, 14-16 cm off (median bias
     -2 to -6 cm) at 80 (people's and cyclists' boxes keep ``height_percentile``: their top is a
     head a few pixels wide; below 80 a box's roof is too small a share of it and single frames
-    read low: docs/results.md, 2026-12-05 twenty-first session)."""
+    read low: docs/results.md, 2026-12-05 twenty-first session). The big moving blobs kept for the
+    vehicles the head misses read at it too (not with ``keep_motion_blobs``, which keeps walkers'
+    blobs as well: twenty-second session)."""
     background: str = "knn"
     """Background subtractor: 'mog2', 'cnt', 'knn', 'gsoc' or 'none' (height map only)."""
     work_width: int = 480

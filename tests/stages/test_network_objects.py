@@ -184,8 +184,23 @@ def test_a_standing_person_with_a_confident_box_is_detected_and_blobs_miss_them(
 def test_a_big_motion_blob_without_a_box_is_an_object_as_the_head_misses_big_ones(tall, kept):
     """A quarter of the frame tall or more (the 240 px frame: 60 px): kept without a box; the
     blob finder skips smaller blobs before measuring them, exactly at that floor."""
-    big = run(NETWORK_MODE, found(), walker_tall=tall).detections
+    at_top = dataclasses.replace(NETWORK_MODE, vehicle_height_percentile=100.0)
+    big = run(at_top, found(), walker_tall=tall).detections
     assert [(d.cls_source, round(d.height(), 1), d.box[3]) for d in big] == ([("objects", 1.8, tall)] if kept else [])
+
+
+def test_a_big_motion_blob_reads_at_the_vehicles_percentile_and_kept_blobs_at_the_top():
+    """The big blobs kept in network mode are the near vehicles the head misses: measured as its
+    vehicle boxes are (``vehicle_height_percentile``); with ``keep_motion_blobs`` every blob is
+    kept, walkers too, and all read at ``height_percentile`` as in blobs mode."""
+    def height(config):
+        [blob] = run(config, found(), walker_tall=100).detections
+        return blob.height()
+
+    # The drawn walker's heights fall linearly from 1.80 m at the crown: its 80th percentile is lower.
+    assert height(NETWORK_MODE) < 1.70
+    assert height(dataclasses.replace(NETWORK_MODE, vehicle_height_percentile=100.0)) == pytest.approx(1.8, abs=0.05)
+    assert height(dataclasses.replace(NETWORK_MODE, keep_motion_blobs=True)) == pytest.approx(1.8, abs=0.05)
 
 
 def test_a_motion_blob_without_a_box_is_no_object_unless_kept():
