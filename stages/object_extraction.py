@@ -131,12 +131,11 @@ class ObjectExtractor:
         self.network = config.source == "network"
         # Blobs are found in blobs mode, and in network mode only to keep those no box covers.
         self._blobs = not self.network or config.keep_motion_blobs
-        # In network mode without keep_motion_blobs the only blobs measured are the big ones the head
-        # misses, near vehicles: they read at the vehicles' percentile, as the head's vehicle boxes do
-        # (held out, tracked vehicles over the same objects: trk_val20 14.1 -> 10.4 cm, trk_test40
-        # 15.9 -> 14.4; docs/results.md, 2026-12-05 twenty-second session).
-        big_only = self.network and not config.keep_motion_blobs
-        self.blob_percentile = config.vehicle_height_percentile if big_only else config.height_percentile
+        # Without _blobs (network mode, no keep_motion_blobs) the only blobs measured are the big ones
+        # the head misses, near vehicles: they read at the vehicles' percentile, as the head's vehicle
+        # boxes do (held out, tracked vehicles over the same objects: trk_val20 14.1 -> 10.4 cm,
+        # trk_test40 15.9 -> 14.4; docs/results.md, 2026-12-05 twenty-second session).
+        self.blob_percentile = config.height_percentile if self._blobs else config.vehicle_height_percentile
         self._reference: np.ndarray | None = None
         self.height_threshold_m = ground.height_threshold_m
         self.subtractor = make_background_subtractor(config.background)
