@@ -523,6 +523,9 @@ class TrainV2Config:
     offsets can lean towards the vertical vanishing point (heightnet/contact_model.py)."""
     crop_probability: float = 0.5
     """Share of samples that are native-resolution windows around a mover (else whole frames)."""
+    appearance: float = 0.0
+    """Share of pairs whose look is randomised (gamma, channels, grey, blur, texture, noise, JPEG;
+    heightnet/appearance.py) so that the network cannot lean on the generator's flat renders."""
     max_matches: int = 64
     """Matched points per frame pair for the height-consistency loss."""
     checkpoint_every: int = 250

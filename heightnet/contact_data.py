@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
+from heightnet.appearance import apply_appearance, draw_appearance, pair_texture
 from heightnet.data import Augmentation, apply_colour, colour_jitter, match_features, window_matches
 from heightnet.detection_targets import detection_targets, ignored_cells, window_boxes
 from synth.dataset import PARKED_VEHICLE_ID
@@ -180,6 +181,7 @@ class ContactSampling:
     colour: bool = True
     camera_channels: bool = False
     detection: bool = False            # centre heatmap and box targets (heightnet/detection_targets.py)
+    appearance: float = 0.0            # share of pairs whose look is randomised (heightnet/appearance.py)
 
 
 class ContactPairDataset:
@@ -240,6 +242,8 @@ class ContactPairDataset:
         flip = bool(self.augment and self.sampling.flip and rng.random() < 0.5)
         colour = colour_jitter(rng, Augmentation()) if self.augment and self.sampling.colour else None
         W, H = self.size
+        look = draw_appearance(rng, self.sampling.appearance if self.augment else 0.0)
+        texture = pair_texture(rng, look, W, H)
         sx, sy = W / w, H / h
         camera = seq.camera.window(x0, y0, w, h, W, H, flip)
         images, offsets, heights, grounds, instances = [], [], [], [], []
@@ -263,6 +267,7 @@ class ContactPairDataset:
                 off = off * np.float32([-1, 1])
             if colour is not None:
                 rgb = apply_colour(rgb, colour)
+            rgb = apply_appearance(rgb, look, rng, texture)
             images.append(np.ascontiguousarray(rgb.transpose(2, 0, 1)))
             offsets.append(np.ascontiguousarray(off.transpose(2, 0, 1)).astype(np.float16))
             heights.append(hgt[None].astype(np.float16))

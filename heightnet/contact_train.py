@@ -106,6 +106,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     optimiser = torch.optim.AdamW(parameter_groups(net), lr=config.lr, weight_decay=config.weight_decay)
     ema = copy.deepcopy(net)
     step, images, warmup_from = 0, 0, 0
+    measured: dict[str, Any] = {}
     if config.head_only and not checkpoint_path.is_file():
         raise ValueError(f"train_v2.head_only trains the detection head of a trained network, and "
                          f"{checkpoint_path} holds none: resume a state or set train_v2.head_only = false")
@@ -113,12 +114,14 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
         if not resume:
             raise FileExistsError(f"{checkpoint_path} exists: resume it or choose another output folder")
         step, images, warmup_from = load_state(checkpoint_path, net, optimiser, config, ema)
+        measured = camera_measurements(checkpoint_path, config.head_only)
         for name in ("log.csv", "curve.csv"):   # rows logged after the checkpoint are logged again
             _drop_rows_after(run_dir / name, step)
     (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
 
     sampling = ContactSampling(crop_probability=config.crop_probability,
-                               camera_channels=config.camera_channels, detection=config.detection)
+                               camera_channels=config.camera_channels, detection=config.detection,
+                               appearance=config.appearance)
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
                                  config.max_matches, config.seed)
     per_epoch = max(1, len(dataset) // config.batch_size)
@@ -179,7 +182,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                              **{k: f"{v:.2f}" for k, v in scores_row(scores).items()}})
                 tick, waited = time.time(), 0.0   # evaluation time is not training throughput
             if step % config.checkpoint_every == 0 or last:
-                save_state(checkpoint_path, net, optimiser, step, images, config, ema, warmup_from)
+                save_state(checkpoint_path, net, optimiser, step, images, config, ema, warmup_from, measured)
             if out_of_time:
                 break
             asked = time.time()
@@ -303,11 +306,31 @@ def update_average(ema: torch.nn.Module, net: torch.nn.Module, decay: float, pre
                 averaged.copy_(current)
 
 
+CAMERA_MEASUREMENTS = ("camera_spread_scale", "camera_spread", "camera_error_correlation")
+"""State keys that ``python -m heightnet.camera_fresh --write`` adds: how far the camera heads'
+guesses fall from unseen cameras, which ``heightpipe export`` puts in the model (the run widens
+the heads' spread by it)."""
+
+
+def camera_measurements(path: Path, head_only: bool) -> dict[str, Any]:
+    """The camera heads' measurements held by the state at ``path``, to be written with every
+    later state of a head-only run: its camera heads are frozen, so what was measured of them
+    still holds. A run that trains them leaves the measurements behind (they would describe heads
+    that no longer exist) and says so: measure them again before exporting."""
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    measured = {key: state[key] for key in CAMERA_MEASUREMENTS if key in state}
+    if measured and not head_only:
+        print(f"the camera heads train: the measurement of their spread in {path} no longer holds and "
+              "is not kept; run python -m heightnet.camera_fresh --write before exporting")
+        return {}
+    return measured
+
+
 def save_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer, step: int,
                images: int, config: TrainV2Config, ema: torch.nn.Module | None = None,
-               warmup_from: int = 0) -> None:
+               warmup_from: int = 0, measured: dict[str, Any] | None = None) -> None:
     """Atomically write the compact state: weights and their average in float32, Adam moments in
-    float16."""
+    float16, and ``measured`` (``camera_measurements``) as it was."""
     opt = optimiser.state_dict()
     # state_dict() hands out the live per-parameter dicts: build new ones, never edit those.
     opt["state"] = {index: {key: _cpu(_compact(key, value)) for key, value in state.items()}
@@ -316,7 +339,7 @@ def save_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimize
     torch.save({"model": _cpu_weights(net), "ema": _cpu_weights(ema or net), "optimiser": opt,
                 "step": step, "images": images, "warmup_from": warmup_from,
                 "architecture": net.arch.to_dict(), "input_size": [config.input_width, config.input_height],
-                "config": dataclasses.asdict(config)}, tmp)
+                "config": dataclasses.asdict(config), **(measured or {})}, tmp)
     tmp.replace(path)
 
 

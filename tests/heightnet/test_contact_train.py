@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 
@@ -267,6 +268,27 @@ def test_head_only_training_moves_the_head_and_nothing_else(contact_sequences, t
     with pytest.raises(ValueError, match="head_only"):
         train_contact(small_config(tmp_path / "fresh", head_only=True), contact_sequences, progress=False,
                       max_steps=1)
+
+
+def test_the_camera_heads_measurement_stays_with_head_only_training_and_no_other(contact_sequences, tmp_path,
+                                                                                 capsys):
+    """``camera_fresh --write`` measures the frozen camera heads: a head-only run keeps that in every
+    state it writes (the export puts it in the model); a run that trains the heads drops it and
+    says to measure again (a resumed head-only run once exported models without it)."""
+    train_contact(small_config(tmp_path / "run", detection=True), contact_sequences, progress=False, max_steps=2)
+    path = tmp_path / "run" / "checkpoint.pt"
+    state = torch.load(path, weights_only=False)
+    state.update(camera_spread_scale=[2.0, 1.0, 2.5], camera_error_correlation=np.eye(3).tolist())
+    torch.save(state, path)
+    train_contact(small_config(tmp_path / "run", detection=True, head_only=True), contact_sequences,
+                  resume=True, progress=False, max_steps=2)
+    kept = torch.load(path, weights_only=False)
+    assert kept["step"] == 4 and kept["camera_spread_scale"] == [2.0, 1.0, 2.5]
+    assert kept["camera_error_correlation"] == np.eye(3).tolist()
+    trains_the_heads = dataclasses.replace(small_config(tmp_path / "run", detection=True), steps=6)
+    train_contact(trains_the_heads, contact_sequences, resume=True, progress=False, max_steps=2)
+    assert "not kept" in capsys.readouterr().out
+    assert "camera_spread_scale" not in torch.load(path, weights_only=False)
 
 
 def test_a_log_written_with_fewer_columns_is_widened(tmp_path):
