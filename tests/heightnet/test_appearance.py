@@ -39,9 +39,8 @@ def test_every_change_keeps_the_size_and_type_and_changes_the_look():
 def test_both_frames_of_a_pair_change_alike_but_for_sensor_noise():
     image = _image()
     rng = np.random.default_rng(1)
-    draw = dataclasses.replace(draw_appearance(rng, 1.0), noise_sigma=0.0)
-    texture = pair_texture(rng, dataclasses.replace(draw, texture_sigma=6.0), 64, 48)
-    draw = dataclasses.replace(draw, texture_sigma=6.0)
+    draw = dataclasses.replace(draw_appearance(rng, 1.0), noise_sigma=0.0, texture_sigma=6.0)
+    texture = pair_texture(rng, draw, 64, 48)
     first = apply_appearance(image, draw, rng, texture)
     second = apply_appearance(image, draw, rng, texture)
     assert np.array_equal(first, second)
