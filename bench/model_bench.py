@@ -25,7 +25,9 @@ SHIPPED_V2 = REPO_ROOT / "stages" / "models" / "heightnet_v2.onnx"
 
 
 def time_onnx(path: Path, threads: int, rounds: int, runs: int) -> tuple[float, int, int]:
-    """Best mean seconds per frame over ``rounds`` of ``runs`` frames; also the input size."""
+    """Best mean seconds per frame over ``rounds`` of ``runs`` frames; also the input size. A free
+    input size (a v2 export) runs at the size its metadata names, fixed as the run time fixes it;
+    every input (a motion-reading v2 head also takes the frame before) gets the same image."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
@@ -33,14 +35,22 @@ def time_onnx(path: Path, threads: int, rounds: int, runs: int) -> tuple[float, 
     options.inter_op_num_threads = 1
     session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     _, _, height, width = session.get_inputs()[0].shape
+    if not isinstance(width, int) or not isinstance(height, int):
+        metadata = session.get_modelmeta().custom_metadata_map
+        free = {height: int(metadata["heightpipe.input_height"]), width: int(metadata["heightpipe.input_width"])}
+        for name, size in free.items():
+            options.add_free_dimension_override_by_name(name, size)
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        height, width = free[height], free[width]
     image = np.random.default_rng(0).standard_normal((1, 3, height, width)).astype(np.float32)
+    feed = {given.name: image for given in session.get_inputs()}
     for _ in range(2):
-        session.run(None, {"image": image})
+        session.run(None, feed)
     best = float("inf")
     for _ in range(rounds):
         start = time.perf_counter()
         for _ in range(runs):
-            session.run(None, {"image": image})
+            session.run(None, feed)
         best = min(best, (time.perf_counter() - start) / runs)
     return best, width, height
 

@@ -508,6 +508,9 @@ class TrainV2Config:
     detection_blocks: int = 1
     """Residual blocks deepening the detection head (heightnet/contact_model.py ``DetectionHead``;
     the committed run grew one at 604,000 images)."""
+    detection_motion: bool = False
+    """The detection head also reads each cell's change since the last frame (a motion path that
+    starts at zero; the ONNX file then takes the previous frame as a second input)."""
     head_only: bool = True
     """Train the detection head alone: the rest of the network keeps its averaged weights,
     BatchNorm included, so heights stay as they are and a step costs about half (no backward pass

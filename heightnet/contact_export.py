@@ -4,7 +4,8 @@ The graph's input size is free (the metadata names the one it was trained at); i
 the network knows: ``offsets`` (1 x 2 x H x W, input pixels to each
 pixel's ground-contact point), ``ground_logit`` (1 x 1 x H x W) and ``camera`` (1 x 6: pitch,
 roll, log vertical focal length in image heights, then their log-variances) and, with a
-detection head, ``centre_logit`` (1 x 3 x H/4 x W/4) and ``box`` (1 x 4 x H/4 x W/4). Metres need the
+detection head, ``centre_logit`` (1 x 3 x H/4 x W/4) and ``box`` (1 x 4 x H/4 x W/4); a head that reads
+motion (``detection_motion``) takes the frame before as a second input, ``previous_image``. Metres need the
 camera and come from the closed form in ``stages/ground_contact.py`` at run time. The metadata says
 so (``heightpipe.output_units = ground_contact_offsets``) beside the usual input contract.
 """
@@ -21,7 +22,7 @@ import torch
 from heightnet.contact_model import CAMERA_OUTPUTS, DETECTION_CLASSES, DETECTION_STRIDE, ContactNet
 from heightnet.contact_train import load_network
 from heightnet.export import input_metadata
-from stages.heightnet_model import CONTACT_UNITS
+from stages.heightnet_model import CONTACT_UNITS, PREVIOUS_INPUT
 
 OPSET = 17
 # What the run-time stage reads the offsets as (stages/heightnet_model.py tells v1 from v2 by it).
@@ -82,7 +83,13 @@ def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict
     # (``height.input_width``) and fixes it when it builds its session.
     free = {"image": {2: "height", 3: "width"}}
     free.update({name: {2: f"{name}_height", 3: f"{name}_width"} for name in output_names(net) if name != "camera"})
-    torch.onnx.export(net, (example,), str(tmp), input_names=["image"],
+    inputs = {"image": example}
+    if net.arch.detection_motion:
+        # The frame before: the run time passes the last frame it ran on (the first frame twice).
+        inputs[PREVIOUS_INPUT] = torch.randn(1, 3, height, width, generator=torch.Generator().manual_seed(1))
+        free[PREVIOUS_INPUT] = {2: "height", 3: "width"}
+    graph = _WithPrevious(net).eval() if net.arch.detection_motion else net
+    torch.onnx.export(graph, tuple(inputs.values()), str(tmp), input_names=list(inputs),
                       output_names=output_names(net), opset_version=OPSET,
                       do_constant_folding=True, dynamo=False, dynamic_axes=free)
     model = onnx.load(str(tmp))
@@ -96,11 +103,22 @@ def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict
     onnx.save(model, str(out))
     tmp.unlink()
     with torch.no_grad():
-        expected = [t.numpy() for t in net(example)]
+        expected = [t.numpy() for t in graph(*inputs.values())]
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     names = output_names(net)
-    got = session.run(names, {"image": example.numpy()})
+    got = session.run(names, {name: value.numpy() for name, value in inputs.items()})
     diffs = {name: float(np.abs(a - b).max()) for name, a, b in zip(names, got, expected)}
     if max(diffs.values()) > tolerance:
         raise ValueError(f"ONNX Runtime differs from PyTorch by {max(diffs.values()):.2e} in {out}")
     return {"size_bytes": out.stat().st_size, **diffs}
+
+
+class _WithPrevious(torch.nn.Module):
+    """The network with the previous frame as its second positional input (what ONNX export traces)."""
+
+    def __init__(self, net: ContactNet):
+        super().__init__()
+        self.net = net
+
+    def forward(self, image: torch.Tensor, previous: torch.Tensor):
+        return self.net(image, previous=previous)

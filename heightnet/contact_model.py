@@ -13,7 +13,8 @@ Outputs for an input of W x H (both multiples of 32):
 * with ``detection``: ``centre_logit`` B x 3 x H/4 x W/4 (person, cyclist, vehicle centre
   heatmaps) and ``box`` B x 4 x H/4 x W/4 (the centre's offset from its cell centre and the box
   width and height, all in input pixels): a CenterNet-style head (Zhou et al. 2019) on the same
-  features, so objects cost no second network.
+  features, so objects cost no second network; with ``detection_motion`` the head also reads
+  how much each of its cells changed since the frame before (a second input, ``previous``).
 
 The offset of a pixel on a person's head is the person's height in pixels, so every pixel must
 see down to its object's foot. Four stride-2 levels of two 3x3 convolutions see about 90 input
@@ -84,6 +85,10 @@ BOX_UNIT_PX = 16.0
 CENTRE_PRIOR = 0.1
 # Hidden channels of the detection head's residual blocks, in multiples of its width.
 DETECTION_BLOCK_EXPAND = 2
+# The detection head's motion path (``DetectionHead``, ``motion_channels``): its input channels
+# (each cell's mean and largest change) and hidden width.
+MOTION_CHANNELS = 2
+MOTION_WIDTH = 16
 # Position input channels (x, y in the source frame) and the window of a whole frame in their
 # units: x = x_start + x_span * (column + 0.5) / width, likewise y.
 POSITION_CHANNELS = 2
@@ -102,24 +107,26 @@ class ContactArchitecture:
     position: bool = False                     # source-frame coordinate input channels
     detection_context: bool = False            # the detection head also reads the 1/16 context
     detection_blocks: int = 0                  # residual blocks in the detection head
+    detection_motion: bool = False             # the detection head also reads the change from the last frame
 
     def to_dict(self) -> dict:
         return {"trunk": self.trunk, "widths": list(self.widths), "camera_channels": self.camera_channels,
                 "context": list(self.context), "detection": self.detection, "refine": self.refine,
                 "gate": self.gate, "position": self.position, "detection_context": self.detection_context,
-                "detection_blocks": self.detection_blocks}
+                "detection_blocks": self.detection_blocks, "detection_motion": self.detection_motion}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ContactArchitecture":
         return cls(d["trunk"], tuple(d["widths"]), int(d["camera_channels"]),
                    tuple(d.get("context", ())), bool(d.get("detection", False)), int(d.get("refine", 0)),
                    bool(d.get("gate", False)), bool(d.get("position", False)),
-                   bool(d.get("detection_context", False)), int(d.get("detection_blocks", 0)))
+                   bool(d.get("detection_context", False)), int(d.get("detection_blocks", 0)),
+                   bool(d.get("detection_motion", False)))
 
     def grows_from(self, old: "ContactArchitecture") -> bool:
         """True if this network is ``old`` plus new parts only (context blocks, a detection
-        head, a refinement, the gate, the position channels, the head's context path and residual
-        blocks) — parts that start as no-ops, so ``old``'s weights carry over."""
+        head, a refinement, the gate, the position channels, the head's context path, residual
+        blocks and motion path) — parts that start as no-ops, so ``old``'s weights carry over."""
         same_core = (self.trunk, self.widths, self.camera_channels) == (old.trunk, old.widths, old.camera_channels)
         return (same_core and self.context[:len(old.context)] == old.context
                 and (self.detection or not old.detection) and old.refine in (0, self.refine)
@@ -127,6 +134,8 @@ class ContactArchitecture:
                 and (self.detection_context or not old.detection_context)
                 and (self.detection or not self.detection_context)
                 and (self.detection or not self.detection_blocks)
+                and (self.detection_motion or not old.detection_motion)
+                and (self.detection or not self.detection_motion)
                 and self.detection_blocks >= old.detection_blocks and self != old)
 
 
@@ -210,9 +219,14 @@ class DetectionHead(nn.Module):
     ``blocks`` residual blocks (3x3 convolution to ``DETECTION_BLOCK_EXPAND`` x the width, ReLU,
     3x3 back, the last starting at zero) deepen the head before its trunk: with one convolution
     the head underfit its own training cameras as much as held-out ones (person recall 0.42 /
-    0.39 at 604,000 images, docs/results.md 2026-12-04, fifth session)."""
+    0.39 at 604,000 images, docs/results.md 2026-12-04, fifth session).
 
-    def __init__(self, width: int, context_width: int = 0, blocks: int = 0):
+    With ``motion``, a third path reads how much each cell changed since the last frame
+    (``motion_channels``): what moves is an object wherever the picture looks unlike the
+    generator's, and the rule that let motion confirm weak boxes (``objects.score_motion``) is a
+    hand-set threshold the head can learn instead. It too starts at zero."""
+
+    def __init__(self, width: int, context_width: int = 0, blocks: int = 0, motion: bool = False):
         super().__init__()
         self.context = None
         if context_width:
@@ -220,6 +234,13 @@ class DetectionHead(nn.Module):
                                          nn.Conv2d(width, width, 1))
             nn.init.zeros_(self.context[2].weight)
             nn.init.zeros_(self.context[2].bias)
+        self.motion = None
+        if motion:
+            self.motion = nn.Sequential(nn.Conv2d(MOTION_CHANNELS, MOTION_WIDTH, 3, padding=1), nn.ReLU(inplace=True),
+                                        nn.Conv2d(MOTION_WIDTH, MOTION_WIDTH, 3, padding=1), nn.ReLU(inplace=True),
+                                        nn.Conv2d(MOTION_WIDTH, width, 1))
+            nn.init.zeros_(self.motion[4].weight)
+            nn.init.zeros_(self.motion[4].bias)
         self.blocks = nn.ModuleList(_zero_residual(width, DETECTION_BLOCK_EXPAND * width) for _ in range(blocks))
         self.trunk = nn.Sequential(nn.Conv2d(width, width, 3, padding=1), nn.ReLU(inplace=True))
         self.centre = nn.Conv2d(width, len(DETECTION_CLASSES), 1)
@@ -228,10 +249,13 @@ class DetectionHead(nn.Module):
         nn.init.zeros_(self.box.weight)
         nn.init.zeros_(self.box.bias)
 
-    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
+                motion: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Centre logits, and boxes (dx, dy, w, h) in input pixels."""
         if self.context is not None:
             x = x + F.interpolate(self.context(context), size=x.shape[-2:], mode="bilinear", align_corners=False)
+        if self.motion is not None:
+            x = x + self.motion(motion)
         for block in self.blocks:
             x = x + block(x)
         y = self.trunk(x)
@@ -239,6 +263,17 @@ class DetectionHead(nn.Module):
         box = torch.cat([raw[:, :2] * DETECTION_STRIDE,
                          BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
         return self.centre(y), box
+
+
+def motion_channels(image: torch.Tensor, previous: torch.Tensor | None) -> torch.Tensor:
+    """B x 2 x H/4 x W/4: each detection cell's mean and largest change since ``previous`` (the
+    largest absolute difference over the three normalised colour channels, per pixel); zero without
+    a previous frame (a run's first frame)."""
+    if previous is None:
+        change = torch.zeros_like(image[:, :1])
+    else:
+        change = (image[:, :3] - previous[:, :3]).abs().amax(1, keepdim=True)
+    return torch.cat([F.avg_pool2d(change, DETECTION_STRIDE), F.max_pool2d(change, DETECTION_STRIDE)], 1)
 
 
 def _zero_residual(width: int, hidden: int) -> nn.Sequential:
@@ -295,7 +330,8 @@ class ContactNet(nn.Module):
         for i in range(len(w) - 1, 0, -1):   # 1/16 -> 1/8 -> 1/4 -> 1/2
             self.decoder.append(level(arch.trunk, w[i] + w[i - 1], w[i - 1], 1))
         self.context = nn.Sequential(*(ContextBlock(w[-1], d) for d in arch.context))
-        self.detection_head = (DetectionHead(w[1], w[-1] if arch.detection_context else 0, arch.detection_blocks)
+        self.detection_head = (DetectionHead(w[1], w[-1] if arch.detection_context else 0, arch.detection_blocks,
+                                             arch.detection_motion)
                                if arch.detection else None)
         self.refinement = Refinement(arch.refine) if arch.refine else None
         self.offset_gate = OffsetGate() if arch.gate else None
@@ -319,9 +355,10 @@ class ContactNet(nn.Module):
         return skips, self.context(x)
 
     def forward(self, image: torch.Tensor, camera_channels: torch.Tensor | None = None,
-                window: torch.Tensor | None = None):
+                window: torch.Tensor | None = None, previous: torch.Tensor | None = None):
         """``window`` (B x 4, ``position_window``) says where each image lies in its source frame;
-        None = the whole frame, as at run time."""
+        None = the whole frame, as at run time. ``previous``: the frame before each image (the
+        detection head's motion path; None = no change)."""
         skips, x = self.encode(image, camera_channels, window)
         bottleneck = x
         camera = self.camera_head(camera_features(bottleneck))
@@ -342,7 +379,8 @@ class ContactNet(nn.Module):
             offsets = offsets * self.offset_gate(ground)
         if self.detection_head is None:
             return offsets, ground, camera
-        return (offsets, ground, camera, *self.detection_head(quarter, bottleneck))
+        motion = motion_channels(image, previous) if self.arch.detection_motion else None
+        return (offsets, ground, camera, *self.detection_head(quarter, bottleneck, motion))
 
 
 def camera_features(bottleneck: torch.Tensor) -> torch.Tensor:

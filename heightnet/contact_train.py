@@ -53,7 +53,8 @@ def architecture_of(config: TrainV2Config) -> ContactArchitecture:
     return ContactArchitecture(config.trunk, tuple(config.widths), 2 if config.camera_channels else 0,
                                tuple(config.context), config.detection, config.refine,
                                config.gate, config.position, config.detection and config.detection_context,
-                               config.detection_blocks if config.detection else 0)
+                               config.detection_blocks if config.detection else 0,
+                               config.detection and config.detection_motion)
 
 
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
@@ -150,7 +151,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                 group["lr"] = lr
             channels = batch["camera_channels"].flatten(0, 1) if "camera_channels" in batch else None
             offsets, ground, camera, *detection = net(batch["image"].flatten(0, 1), channels,
-                                                      batch["window"].flatten(0, 1))
+                                                      batch["window"].flatten(0, 1), pair_previous(batch["image"]))
             losses = contact_loss(offsets, ground, camera, batch, loss_weights, tuple(detection) or None)
             optimiser.zero_grad(set_to_none=True)
             losses["total"].backward()
@@ -192,6 +193,13 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
         log.close()
         curve.close()
     return {"step": step, "images": images, "net": net, "ema": ema}
+
+
+def pair_previous(images: torch.Tensor) -> torch.Tensor:
+    """For the B x 2 pairs' images flattened as the network takes them (t-1, t, t-1, t, ...),
+    the other frame of each one's pair: the previous frame for t, the next for t-1, so that both
+    see the same change (the motion path reads its absolute value)."""
+    return images.flip(1).flatten(0, 1)
 
 
 def training_device(name: str) -> torch.device:

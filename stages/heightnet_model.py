@@ -40,6 +40,9 @@ committed training state (690,000 images): ``height.model = "v2"``, and the mode
 only its camera's height (``core.config.model_for_camera``)."""
 NAMED_MODELS = {"v1": SHIPPED_MODEL, "int8": SHIPPED_INT8_MODEL, "v2": SHIPPED_V2_MODEL}
 CONTACT_UNITS = "ground_contact_offsets"
+# The second input of a v2 network whose detection head reads motion: the frame before, prepared
+# as the image is (``heightnet/contact_model.py``, ``motion_channels``).
+PREVIOUS_INPUT = "previous_image"
 """HeightNet v2's units (heightnet/contact_export.py writes them)."""
 OUTPUT_UNITS = ("metres", "camera_height_fraction", CONTACT_UNITS)
 CAMERA_HEAD_SIZE = 6
@@ -281,16 +284,23 @@ class HeightNetModel:
         self._inv_std = 1.0 / (np.array(self.info.std, np.float32) * 255.0)
         self._cached_index: int | None = None
         self._cached: ModelOutput | None = None
+        self._last_input: np.ndarray | None = None
+        """The input of the last frame ``infer`` ran on: a motion-reading head's previous frame."""
 
     def _check_signature(self) -> None:
         inputs = self.session.get_inputs()
-        if len(inputs) != 1:
-            raise ModelError(f"{self.path}: expected one input, found {len(inputs)}")
+        names = [i.name for i in inputs]
+        if len(inputs) not in (1, 2) or (len(inputs) == 2 and names[1] != PREVIOUS_INPUT):
+            raise ModelError(f"{self.path}: expected an image input (and optionally {PREVIOUS_INPUT!r}), "
+                             f"found {names}")
         expected = [1, 3, self.info.input_height, self.info.input_width]
-        if list(inputs[0].shape) != expected:
-            raise ModelError(f"{self.path}: input shape {inputs[0].shape} does not match "
-                             f"the expected {expected} (1 x RGB x height x width from metadata)")
+        for given in inputs:
+            if list(given.shape) != expected:
+                raise ModelError(f"{self.path}: input shape {given.shape} ({given.name!r}) does not match "
+                                 f"the expected {expected} (1 x RGB x height x width from metadata)")
         self.input_name = inputs[0].name
+        self.takes_previous = len(inputs) == 2
+        """Whether the network reads the frame before (a detection head with a motion path)."""
         outputs = {o.name: o.shape for o in self.session.get_outputs()}
         h, w = self.info.input_height, self.info.input_width
         if self.info.contact:
@@ -325,18 +335,27 @@ class HeightNetModel:
         return tensor
 
     def infer(self, frame: Frame) -> ModelOutput:
-        """Run the network on a frame (once: repeated calls for one frame hit the cache)."""
+        """Run the network on a frame (once: repeated calls for one frame hit the cache). A network
+        that reads motion gets the last frame this ran on as the one before (on the first, itself)."""
         if self._cached_index == frame.index and self._cached is not None:
             return self._cached
-        self._cached = self.run(frame.image)
+        tensor = self.preprocess(frame.image)
+        self._cached = self._outputs(tensor, self._last_input, frame.image.shape[:2])
+        self._last_input = tensor if self.takes_previous else None
         self._cached_index = frame.index
         return self._cached
 
     def run(self, image_bgr: np.ndarray) -> ModelOutput:
-        """The network on one image (no cache); outputs as ``ModelOutput`` describes."""
-        named = dict(zip(self.output_names, self.session.run(self.output_names,
-                                                              {self.input_name: self.preprocess(image_bgr)})))
-        h, w = image_bgr.shape[:2]
+        """The network on one image alone (no cache, no frame before: a motion-reading head sees
+        no change); outputs as ``ModelOutput`` describes."""
+        return self._outputs(self.preprocess(image_bgr), None, image_bgr.shape[:2])
+
+    def _outputs(self, tensor: np.ndarray, previous: np.ndarray | None, frame_shape: tuple[int, int]) -> ModelOutput:
+        feed = {self.input_name: tensor}
+        if self.takes_previous:
+            feed[PREVIOUS_INPUT] = tensor if previous is None else previous
+        named = dict(zip(self.output_names, self.session.run(self.output_names, feed)))
+        h, w = frame_shape
         logit_full = cv2.resize(named["ground_logit"][0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
         if self.info.contact:
             return ModelOutput(None, logit_full, offsets=named["offsets"][0].transpose(1, 2, 0),

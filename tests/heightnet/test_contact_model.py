@@ -1,5 +1,5 @@
 """HeightNet v2's network: the offset gate, the position channels and the detection head's grown
-parts (heightnet/contact_model.py)."""
+parts, its motion path among them (heightnet/contact_model.py)."""
 
 import dataclasses
 
@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from heightnet.contact_data import position_window
-from heightnet.contact_model import ContactArchitecture, ContactNet, OffsetGate, position_channels
+from heightnet.contact_model import ContactArchitecture, ContactNet, OffsetGate, motion_channels, position_channels
 
 
 def test_the_gate_starts_open_so_a_gated_network_equals_the_ungated_one():
@@ -78,6 +78,7 @@ def test_the_whole_frame_is_the_default_window():
 @pytest.mark.parametrize("grown_part, new_keys, last_weight", [
     ({"detection_context": True}, "detection_head.context.", lambda head: head.context[2].weight),
     ({"detection_blocks": 1}, "detection_head.blocks.", lambda head: head.blocks[0][2].weight),
+    ({"detection_motion": True}, "detection_head.motion.", lambda head: head.motion[4].weight),
 ])
 def test_the_heads_grown_parts_start_as_a_no_op_then_learn(grown_part, new_keys, last_weight):
     """A head grown with the 1/16 context path or a residual block gives the heatmaps and boxes of
@@ -96,3 +97,35 @@ def test_the_heads_grown_parts_start_as_a_no_op_then_learn(grown_part, new_keys,
             assert torch.equal(old, new)
     grown(x)[3].sum().backward()
     assert last_weight(grown.detection_head).grad.abs().sum() > 0
+
+
+def test_motion_channels_are_each_cells_mean_and_largest_change():
+    """Per detection cell (4 x 4 input pixels): the mean and the largest of each pixel's largest
+    colour change; none on a first frame (no previous) or on a frame that did not change."""
+    image = torch.zeros(1, 3, 16, 16)
+    previous = image.clone()
+    previous[0, 1, 5, 6] = -2.0      # one pixel of cell (1, 1) changed in one channel
+    previous[0, 0, 5, 6] = 1.0
+    motion = motion_channels(image, previous)
+    assert motion.shape == (1, 2, 4, 4)
+    expected_mean, expected_max = torch.zeros(4, 4), torch.zeros(4, 4)
+    expected_mean[1, 1], expected_max[1, 1] = 2.0 / 16, 2.0
+    assert torch.allclose(motion[0, 0], expected_mean) and torch.equal(motion[0, 1], expected_max)
+    assert not motion_channels(image, None).any() and not motion_channels(image, image).any()
+
+
+def test_a_motion_head_reads_the_change_and_nothing_else_does():
+    """With a trained-looking motion path (its last convolution no longer zero): a frame that did
+    not change reads as a first frame; one that did changes the heatmaps and boxes, never the
+    offsets, ground or camera (the trunk does not see the previous frame)."""
+    torch.manual_seed(0)
+    net = ContactNet(ContactArchitecture(widths=(8, 8, 16, 16), detection=True, detection_motion=True)).eval()
+    torch.nn.init.normal_(net.detection_head.motion[4].weight, std=0.5)
+    torch.nn.init.normal_(net.detection_head.box.weight, std=0.1)     # an untrained box layer is constant
+    x, other = torch.randn(1, 3, 64, 64), torch.randn(1, 3, 64, 64)
+    with torch.no_grad():
+        first, same, moved = net(x), net(x, previous=x), net(x, previous=other)
+    for a, b in zip(first, same):
+        assert torch.equal(a, b)
+    for name, a, b in zip(("offsets", "ground", "camera", "centre", "box"), first, moved):
+        assert torch.equal(a, b) == (name in ("offsets", "ground", "camera")), name

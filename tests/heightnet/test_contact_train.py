@@ -18,7 +18,7 @@ from heightnet.contact_data import ContactPairDataset, ContactSampling, build_co
 from heightnet.contact_eval import evaluate
 from heightnet.contact_export import export_contact
 from core.config import TrainV2Config
-from heightnet.contact_train import (architecture_of, learning_rate, load_state, train_contact,
+from heightnet.contact_train import (architecture_of, learning_rate, load_state, pair_previous, train_contact,
                                      training_batch)
 from heightnet.normalisation import normalise
 from heightnet.train import collate
@@ -268,6 +268,25 @@ def test_head_only_training_moves_the_head_and_nothing_else(contact_sequences, t
     with pytest.raises(ValueError, match="head_only"):
         train_contact(small_config(tmp_path / "fresh", head_only=True), contact_sequences, progress=False,
                       max_steps=1)
+
+
+def test_each_image_of_a_pair_gets_the_other_as_its_frame_before():
+    images = torch.arange(2 * 2 * 3 * 4 * 4, dtype=torch.float32).view(2, 2, 3, 4, 4)   # B=2 pairs
+    previous = pair_previous(images)
+    flat = images.flatten(0, 1)                                                        # t-1, t, t-1, t
+    assert previous.shape == flat.shape
+    for pair in range(2):
+        assert torch.equal(previous[2 * pair], flat[2 * pair + 1])
+        assert torch.equal(previous[2 * pair + 1], flat[2 * pair])
+
+
+def test_a_head_grown_with_the_motion_path_learns_it(contact_sequences, tmp_path):
+    """A head-only run that asks for ``detection_motion`` grows it onto a trained state (starting at
+    zero, so the first step sees the old head) and trains it on each pair's other frame."""
+    train_contact(small_config(tmp_path / "run", detection=True), contact_sequences, progress=False, max_steps=2)
+    after = train_contact(small_config(tmp_path / "run", detection=True, detection_motion=True, head_only=True),
+                          contact_sequences, resume=True, progress=False, max_steps=2)
+    assert after["net"].detection_head.motion[4].weight.abs().sum() > 0
 
 
 def test_the_camera_heads_measurement_stays_with_head_only_training_and_no_other(contact_sequences, tmp_path,

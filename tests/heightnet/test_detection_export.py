@@ -16,15 +16,28 @@ from stages.object_extraction import ObjectExtractor
 IN_W, IN_H = 64, 64
 
 
+def _exported(folder, net):
+    """``net`` saved as a training state and exported to ``folder``/heightnet_v2.onnx."""
+    import torch
+
+    from heightnet.contact_export import export_contact
+    from heightnet.contact_train import save_state
+
+    state = folder / "checkpoint.pt"
+    save_state(state, net, torch.optim.Adam(net.parameters()), step=1, images=2,
+               config=TrainV2Config(out=str(folder), input_width=IN_W, input_height=IN_H))
+    path = folder / "heightnet_v2.onnx"
+    export_contact(state, path)
+    return path
+
+
 @pytest.fixture(scope="module")
 def detector(tmp_path_factory):
     """ContactNet(widths=(8, 8, 16, 16), detection=True) saved as a training state and exported, with
     its centre bias raised so that an untrained head finds peaks."""
     import torch
 
-    from heightnet.contact_export import export_contact
     from heightnet.contact_model import ContactArchitecture, ContactNet
-    from heightnet.contact_train import save_state
 
     torch.manual_seed(0)
     net = ContactNet(ContactArchitecture(widths=(8, 8, 16, 16), detection=True))
@@ -32,13 +45,7 @@ def detector(tmp_path_factory):
         net.detection_head.centre.bias.fill_(1.0)
         net.detection_head.box.bias.copy_(torch.tensor([0.0, 0.0, 0.0, 0.5]))   # 16 x 26 px boxes
     net.eval()
-    folder = tmp_path_factory.mktemp("det")
-    state = folder / "checkpoint.pt"
-    save_state(state, net, torch.optim.Adam(net.parameters()), step=1, images=2,
-               config=TrainV2Config(out=str(folder), input_width=IN_W, input_height=IN_H))
-    path = folder / "heightnet_v2.onnx"
-    export_contact(state, path)
-    return path, net
+    return _exported(tmp_path_factory.mktemp("det"), net), net
 
 
 def test_an_exported_head_gives_the_decoded_peaks_in_frame_pixels(detector):
@@ -115,3 +122,40 @@ def test_an_input_width_the_model_cannot_take_is_one_clear_error(detector, tmp_p
     assert HeightNetModel(fixed, threads=1, input_width=64).info.input_width == 64
     with pytest.raises(ModelError, match="fixed 64x48 input, not 128 wide"):
         HeightNetModel(fixed, threads=1, input_width=128)
+
+
+def test_a_motion_reading_head_gets_the_frame_before_from_the_run_time(tmp_path):
+    """A head with a motion path exports with the frame before as a second input; the run time
+    gives it the last frame it ran on (the first frame: itself, no change), and ``run`` on one
+    image sees no change. Frames are as the network takes them at each call (checked against
+    the PyTorch network)."""
+    import torch
+
+    from heightnet.contact_model import ContactArchitecture, ContactNet
+
+    torch.manual_seed(0)
+    net = ContactNet(ContactArchitecture(widths=(8, 8, 16, 16), detection=True, detection_motion=True))
+    with torch.no_grad():
+        torch.nn.init.normal_(net.detection_head.motion[4].weight, std=0.5)
+        net.detection_head.centre.bias.fill_(1.0)
+    net.eval()
+    model = HeightNetModel(_exported(tmp_path, net), threads=1, detection_min_score=0.3)
+    assert model.takes_previous
+    rng = np.random.default_rng(3)
+    first, second = (rng.integers(0, 255, (96, 160, 3), dtype=np.uint8) for _ in range(2))
+
+    def heatmap_peaks(image, previous):
+        with torch.no_grad():
+            *_, centre, box = net(torch.from_numpy(model.preprocess(image)),
+                                  previous=torch.from_numpy(model.preprocess(previous)))
+        return in_frame(centre_detections(centre[0].numpy(), box[0].numpy(), 4, 0.3, 100),
+                        model.info.detection_classes, (IN_W, IN_H), (160, 96)).scores
+
+    def same(a, b):
+        return a.shape == b.shape and np.allclose(np.sort(a), np.sort(b), atol=1e-4)
+
+    outputs = [model.infer(Frame(index, 0.1 * index, image)) for index, image in enumerate((first, second))]
+    assert same(outputs[0].detections.scores, heatmap_peaks(first, first))
+    assert same(outputs[1].detections.scores, heatmap_peaks(second, first))
+    assert not same(heatmap_peaks(second, first), heatmap_peaks(second, second))
+    assert same(model.run(second).detections.scores, heatmap_peaks(second, second))
