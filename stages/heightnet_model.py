@@ -40,10 +40,10 @@ committed training state (690,000 images): ``height.model = "v2"``, and the mode
 only its camera's height (``core.config.model_for_camera``)."""
 NAMED_MODELS = {"v1": SHIPPED_MODEL, "int8": SHIPPED_INT8_MODEL, "v2": SHIPPED_V2_MODEL}
 CONTACT_UNITS = "ground_contact_offsets"
-# The second input of a v2 network whose detection head reads motion: the frame before, prepared
-# as the image is (``heightnet/contact_model.py``, ``motion_channels``).
-PREVIOUS_INPUT = "previous_image"
 """HeightNet v2's units (heightnet/contact_export.py writes them)."""
+PREVIOUS_INPUT = "previous_image"
+"""The second input of a v2 network whose detection head reads motion: the frame before, prepared
+as the image is (``heightnet/contact_model.py``, ``motion_channels``)."""
 OUTPUT_UNITS = ("metres", "camera_height_fraction", CONTACT_UNITS)
 CAMERA_HEAD_SIZE = 6
 """v2's ``camera`` output: pitch, roll, log focal length in image heights, their log-variances."""
@@ -351,6 +351,8 @@ class HeightNetModel:
         return self._outputs(self.preprocess(image_bgr), None, image_bgr.shape[:2])
 
     def _outputs(self, tensor: np.ndarray, previous: np.ndarray | None, frame_shape: tuple[int, int]) -> ModelOutput:
+        """The network on one prepared input (``previous``: the frame before, None = no change),
+        its outputs at ``frame_shape`` (rows, columns)."""
         feed = {self.input_name: tensor}
         if self.takes_previous:
             feed[PREVIOUS_INPUT] = tensor if previous is None else previous
