@@ -1,4 +1,5 @@
-"""Test media made on the fly: small videos and a tiny ONNX height model (no torch needed)."""
+"""Test media made on the fly: small videos and tiny ONNX height models (no torch needed but for
+``export_contact_net``, which exports a torch network)."""
 
 from __future__ import annotations
 
@@ -200,6 +201,24 @@ def default_sigint() -> None:
     worker must), so without this the SIGINT tests fail whenever the suite itself runs in the
     background."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def export_contact_net(folder: Path, net, width: int, height: int) -> Path:
+    """A ``heightnet.contact_model.ContactNet`` (trained at ``width`` x ``height``) saved as a
+    training state in ``folder`` and exported as the run time reads it: folder/heightnet_v2.onnx
+    (torch is imported here, where a test needs it)."""
+    import torch
+
+    from core.config import TrainV2Config
+    from heightnet.contact_export import export_contact
+    from heightnet.contact_train import save_state
+
+    state = folder / "checkpoint.pt"
+    save_state(state, net, torch.optim.Adam(net.parameters()), step=1, images=2,
+               config=TrainV2Config(out=str(folder), input_width=width, input_height=height))
+    path = folder / "heightnet_v2.onnx"
+    export_contact(state, path)
+    return path
 
 
 def make_tiny_contact_model(path: Path, offsets: np.ndarray, camera: np.ndarray,

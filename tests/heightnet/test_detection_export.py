@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.config import CameraConfig, GroundConfig, ObjectsConfig, TrainV2Config
+from core.config import CameraConfig, GroundConfig, ObjectsConfig
 from core.packets import Frame, FramePacket
+from media import export_contact_net
 from stages.calibration import camera_for_run
 from stages.centre_detections import centre_detections, in_frame
 from stages.height_inference import HeightEstimator
@@ -14,21 +15,6 @@ from stages.heightnet_model import HeightNetModel
 from stages.object_extraction import ObjectExtractor
 
 IN_W, IN_H = 64, 64
-
-
-def _exported(folder, net):
-    """``net`` saved as a training state and exported to ``folder``/heightnet_v2.onnx."""
-    import torch
-
-    from heightnet.contact_export import export_contact
-    from heightnet.contact_train import save_state
-
-    state = folder / "checkpoint.pt"
-    save_state(state, net, torch.optim.Adam(net.parameters()), step=1, images=2,
-               config=TrainV2Config(out=str(folder), input_width=IN_W, input_height=IN_H))
-    path = folder / "heightnet_v2.onnx"
-    export_contact(state, path)
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +31,7 @@ def detector(tmp_path_factory):
         net.detection_head.centre.bias.fill_(1.0)
         net.detection_head.box.bias.copy_(torch.tensor([0.0, 0.0, 0.0, 0.5]))   # 16 x 26 px boxes
     net.eval()
-    return _exported(tmp_path_factory.mktemp("det"), net), net
+    return export_contact_net(tmp_path_factory.mktemp("det"), net, IN_W, IN_H), net
 
 
 def test_an_exported_head_gives_the_decoded_peaks_in_frame_pixels(detector):
@@ -139,7 +125,7 @@ def test_a_motion_reading_head_gets_the_frame_before_from_the_run_time(tmp_path)
         torch.nn.init.normal_(net.detection_head.motion[4].weight, std=0.5)
         net.detection_head.centre.bias.fill_(1.0)
     net.eval()
-    model = HeightNetModel(_exported(tmp_path, net), threads=1, detection_min_score=0.3)
+    model = HeightNetModel(export_contact_net(tmp_path, net, IN_W, IN_H), threads=1, detection_min_score=0.3)
     assert model.takes_previous
     rng = np.random.default_rng(3)
     first, second = (rng.integers(0, 255, (96, 160, 3), dtype=np.uint8) for _ in range(2))
