@@ -150,8 +150,9 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             for group, lr in zip(optimiser.param_groups, group_learning_rates(step, config, warmup_from)):
                 group["lr"] = lr
             channels = batch["camera_channels"].flatten(0, 1) if "camera_channels" in batch else None
+            previous = pair_previous(batch["image"]) if net.arch.detection_motion else None
             offsets, ground, camera, *detection = net(batch["image"].flatten(0, 1), channels,
-                                                      batch["window"].flatten(0, 1), pair_previous(batch["image"]))
+                                                      batch["window"].flatten(0, 1), previous)
             losses = contact_loss(offsets, ground, camera, batch, loss_weights, tuple(detection) or None)
             optimiser.zero_grad(set_to_none=True)
             losses["total"].backward()
