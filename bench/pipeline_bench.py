@@ -4,7 +4,8 @@
 
 Runs the whole pipeline in-process (capture, every stage, rerun + MCAP + CSV sinks all on,
 writing to a temporary folder) over a 640x360 clip and prints one table: decode-only
-frames/s, pipeline frames/s, their ratio, and the milliseconds each stage takes per frame.
+frames/s, pipeline frames/s, their ratio, the CPU a frame costs over all threads (and the
+frames/s that caps on this machine's cores), and the milliseconds each stage takes per frame.
 The default clip is the shipped sample if it is 640x360, else the real traffic clip.
 Model loading and start-up are excluded: they happen once per run, not per frame.
 """
@@ -12,9 +13,12 @@ Model loading and start-up are excluded: they happen once per run, not per frame
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import cv2
 
@@ -32,6 +36,37 @@ def default_clip() -> Path:
         if size == (640, 360):
             return clip
     raise SystemExit("no 640x360 clip found: pass one")
+
+
+@dataclass
+class CpuClock:
+    """The process's CPU time (every thread's) over the frames processed after the first.
+
+    Stage times are wall times on their own threads, which overlap; CPU per frame says what a
+    frame costs the machine, and the cores divided by it the most frames/s they can give: when
+    the run comes close to that ceiling it is the CPU, not one thread, that holds it back.
+    Pass ``on_frame`` to ``run_pipeline`` (called once per processed frame); start-up (loading,
+    priming) comes before the first call and is left out.
+    """
+
+    clock: Callable[[], float] = time.process_time
+    first: float | None = None
+    last: float | None = None
+    calls: int = 0
+
+    def on_frame(self, *_) -> None:
+        now = self.clock()
+        self.first = now if self.first is None else self.first
+        self.last, self.calls = now, self.calls + 1
+
+    def ms_per_frame(self) -> float:
+        if self.calls < 2:
+            return float("nan")
+        return (self.last - self.first) * 1000.0 / (self.calls - 1)
+
+
+def cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def decode_fps(clip: Path, frames: int) -> float:
@@ -61,9 +96,11 @@ def main() -> None:
     config.output.mcap = config.output.csv = True
     config.height.model = args.model
     decode = decode_fps(clip, args.frames)
+    cpu = CpuClock()
     with tempfile.TemporaryDirectory() as tmp:
-        summary = run_pipeline(str(clip), config, Path(tmp) / "bench")
+        summary = run_pipeline(str(clip), config, Path(tmp) / "bench", on_frame=cpu.on_frame)
     ratio = summary.fps / decode
+    cpu_ms = cpu.ms_per_frame()
 
     print(f"clip: {clip} ({summary.frames} frames)")
     print()
@@ -72,6 +109,8 @@ def main() -> None:
     print(f"| OpenCV decode only | {decode:.1f} frames/s |")
     print(f"| heightpipe run, all sinks on | {summary.fps:.1f} frames/s |")
     print(f"| ratio run / decode | {ratio:.3f} |")
+    print(f"| CPU per frame, all threads | {cpu_ms:.1f} ms |")
+    print(f"| ceiling on {cores()} cores (cores / CPU per frame) | {1000.0 * cores() / cpu_ms:.1f} frames/s |")
     print(f"| target | >= {TARGET_FPS:.0f} frames/s: {'met' if summary.fps >= TARGET_FPS else 'NOT met'} |")
     print()
     total = summary.total_ms_per_frame()

@@ -23,8 +23,8 @@ from pathlib import Path
 
 from bench.clips import add_clip_arguments, upscaled_clip
 
-STAGE_ORDER = ("undistortion", "ground", "height", "matching", "objects", "geometry", "tracking",
-               "rerun", "mcap", "csv")
+STAGE_ORDER = ("undistortion", "ground", "height", "keypoints", "matching", "objects", "geometry",
+               "tracking", "rerun", "mcap", "csv")
 
 
 def measure_camera(clip: str, overrides: list[str], out_dir: str, results) -> None:

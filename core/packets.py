@@ -111,6 +111,23 @@ class FeatureMatches:
     """2x3 affine of the static background from the previous to this frame (shake)."""
 
 
+@dataclass
+class FrameKeypoints:
+    """One frame's ORB keypoints on its matching image (``stages.feature_matching``): matched to
+    the next frame's picture there, and what the last frame's keypoints are tracked into."""
+
+    gray: np.ndarray
+    """The matching image: the frame in grey, ``scale`` times smaller."""
+    scale: int
+    """Frame pixels per matching-image pixel."""
+    above_ground: np.ndarray | None
+    """Matching-image bool mask of the pixels above the ground (None without a height map)."""
+    keypoints: list
+    """``cv2.KeyPoint``s in matching-image pixels."""
+    descriptors: np.ndarray | None
+    """Their ORB descriptors (N x 32 uint8; None when there are none)."""
+
+
 @dataclass(frozen=True)
 class NetworkDetections:
     """The height network's own detections in one frame (its detection head: centre-heatmap peaks
@@ -285,6 +302,8 @@ class FramePacket:
     """H x W bool: moving pixels from background subtraction."""
     image_valid: np.ndarray | None = None
     """H x W bool: pixels that carry image (undistortion leaves black corners); None = all."""
+    keypoints: FrameKeypoints | None = None
+    """This frame's ORB keypoints (the keypoints stage; matching finds them itself without it)."""
     matches: FeatureMatches | None = None
     network_detections: NetworkDetections | None = None
     """The height network's detections (a v2 model with a detection head; None without one)."""

@@ -63,16 +63,21 @@ class Scores:
 
 
 def predict(net: torch.nn.Module, rgb: np.ndarray, width: int, height: int,
-            camera: PinholeCamera | None = None) -> tuple[np.ndarray, np.ndarray, CentreDetections | None]:
+            camera: PinholeCamera | None = None,
+            previous_rgb: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, CentreDetections | None]:
     """Offsets H x W x 2 (input pixels), camera-head outputs (6) and, with a detection head,
-    the detected boxes (input pixels) for one whole frame."""
-    image = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
-    x = torch.from_numpy(normalise(image))[None]
-    channels = None
-    if getattr(net, "arch", None) is not None and net.arch.camera_channels:
+    the detected boxes (input pixels) for one whole frame. ``previous_rgb``: the frame before,
+    for a detection head that reads motion (None: no change, as on a run's first frame)."""
+    x = torch.from_numpy(normalise(cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)))[None]
+    arch = getattr(net, "arch", None)
+    channels, motion = None, {}
+    if arch is not None and arch.camera_channels:
         channels = torch.from_numpy(camera_channels(camera, width, height))[None]
+    if arch is not None and arch.detection_motion and previous_rgb is not None:
+        motion["previous"] = torch.from_numpy(normalise(cv2.resize(previous_rgb, (width, height),
+                                                                   interpolation=cv2.INTER_AREA)))[None]
     with torch.no_grad():
-        offsets, _, cam, *detection = net(x, channels)
+        offsets, _, cam, *detection = net(x, channels, **motion)
     found = None
     if detection:
         centre, box = (t[0].numpy() for t in detection)
@@ -92,12 +97,15 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
     pitch_err, focal_err, roll_err, horizon_err = [], [], [], []
     found_true: dict[int, list[bool]] = defaultdict(list)
     detections_matched: list[bool] = []
+    reads_motion = getattr(getattr(net, "arch", None), "detection_motion", False)
     for seq in sequences:
         _, src_h, src_w, _ = seq.rgb.shape
         true_camera = seq.camera.window(0, 0, src_w, src_h, width, height)
         row = f"{seq.camera.height_m * 100:.0f}"
         used = range(min(frames, len(seq)))
-        outputs = [predict(net, np.asarray(seq.rgb[t]), width, height, true_camera) for t in used]
+        outputs = [predict(net, np.asarray(seq.rgb[t]), width, height, true_camera,
+                           np.asarray(seq.rgb[_other_frame(t, len(seq))]) if reads_motion else None)
+                   for t in used]
         mean_camera = np.mean([cam for _, cam, _ in outputs], axis=0)
         head_camera = camera_from_heads(mean_camera, width, height, (src_w, src_h), seq.camera.height_m)
         truth_cam = camera_targets(true_camera, height)
@@ -148,6 +156,12 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
     if detections_matched:
         scores.detection_precision = float(np.mean(detections_matched))
     return scores
+
+
+def _other_frame(t: int, frames: int) -> int:
+    """The frame a motion-reading head compares frame ``t`` with: the one before, and for the
+    first frame the one after, as training pairs them (``contact_train.pair_previous``)."""
+    return t - 1 if t > 0 else min(1, frames - 1)
 
 
 def frame_labels(seq: ContactSequence, t: int, width: int, height: int

@@ -2,7 +2,8 @@
 
     capture thread ──q──> network thread ──q──> the caller's thread
     decode frames         undistortion,         matching, objects, geometry, tracking,
-                          ground + height       then the caller's sinks
+                          ground + height,      then the caller's sinks
+                          keypoints
 
 Why threads and not processes: ONNX Runtime, OpenCV's decoder and most of the OpenCV work in
 matching and object extraction release the GIL, so threads overlap the work without copying
@@ -38,8 +39,10 @@ from typing import Callable, Iterable, Iterator
 from core.packets import CameraInfo, Frame, FramePacket
 from pipeline.stage_chain import StageChain
 
-NETWORK_STAGES = ("undistortion", "ground", "height", "heights")
-"""Stages run on the network thread: the network and what must happen to the frame before it."""
+NETWORK_STAGES = ("undistortion", "ground", "height", "heights", "keypoints")
+"""Stages run on the network thread: the network, what must happen to the frame before it, and
+the keypoints matching will use, which need the network's height map but not the last frame: the
+calling thread has more to do (docs/design.md, Threads and processes)."""
 
 BEFORE_NETWORK = ("undistortion",)
 """Of those, the ones a frame that reuses the last network outputs still goes through."""

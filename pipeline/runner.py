@@ -1,8 +1,8 @@
 """The pipeline, in the order docs/design.md lists it.
 
 open the source → seed the background model from frames read ahead (files only) → for each
-frame: (undistortion) → ground segmentation → height inference → feature matching → object
-extraction → (geometry) → tracking → sinks → close the sinks.
+frame: (undistortion) → ground segmentation → height inference → keypoints → feature matching →
+object extraction → (geometry) → tracking → sinks → close the sinks.
 
 Sinks are closed whatever happens (end of video, Ctrl-C, SIGTERM, an exception), so a
 stopped run still leaves a readable MCAP, .rrd and CSV of everything processed.

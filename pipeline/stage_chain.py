@@ -4,8 +4,8 @@
 with ``build_stage_chain`` and push frames through ``StageChain.process``, so what is measured
 in evaluation is what runs in production. The order is the one docs/design.md lists:
 
-(undistortion) → ground segmentation → height inference → feature matching → object
-extraction → (geometry) → tracking
+(undistortion) → ground segmentation → height inference → keypoints → feature matching →
+object extraction → (geometry) → tracking
 
 Undistortion runs when the camera has lens distortion; geometry when the camera is calibrated
 (its ground plane is known) and the caller wants it. Evaluation on generator data may replace
@@ -129,7 +129,7 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
     puts in ``packet.network_detections`` (none for the generator's true maps).
     """
     from stages.calibration import has_distortion, is_calibrated
-    from stages.feature_matching import FeatureMatcher
+    from stages.feature_matching import FeatureMatcher, KeypointDetector
     from stages.object_extraction import ObjectExtractor
     from stages.tracking import TrackingStage
 
@@ -149,6 +149,7 @@ def build_stage_chain(config: Config, camera: CameraInfo, heights: Stage | None 
         stages.append(("undistortion", Undistorter(camera)))
     stages += height_stages
     stages += [
+        ("keypoints", KeypointDetector(config.matching, config.ground)),
         ("matching", FeatureMatcher(config.matching, config.ground)),
         ("objects", ObjectExtractor(config.objects, config.ground)),
     ]

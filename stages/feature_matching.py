@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from core.config import GroundConfig, MatchingConfig
-from core.packets import FeatureMatches, FramePacket
+from core.packets import FeatureMatches, FrameKeypoints, FramePacket
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,15 @@ class FeatureMatchingConstants:
 CONSTANTS = FeatureMatchingConstants()
 
 
-class FeatureMatcher:
+class KeypointDetector:
+    """Each frame's ORB keypoints on its matching image (``packet.keypoints``).
+
+    A stage apart from the matching that uses them because it needs this frame's height map but
+    not the last frame: the overlapped run finds them on the network's thread, right after the
+    network, and matches on the calling thread, which has more to do (docs/design.md, Threads
+    and processes). ORB draws no random numbers, so where it runs changes nothing.
+    """
+
     def __init__(self, config: MatchingConfig, ground: GroundConfig):
         self.config = config
         self.height_threshold_m = ground.height_threshold_m
@@ -54,16 +62,37 @@ class FeatureMatcher:
                                         nlevels=CONSTANTS.orb_levels)
         self.orb_objects = cv2.ORB_create(nfeatures=int(config.orb_features * CONSTANTS.object_feature_share),
                                           nlevels=CONSTANTS.orb_levels)
-        self.orb_describe = cv2.ORB_create(nlevels=CONSTANTS.orb_levels)
-        self.lk_params = dict(winSize=(config.lk_window, config.lk_window), maxLevel=config.lk_levels,
-                              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
-        self._prev_gray: np.ndarray | None = None
-        self._prev_keypoints: list[cv2.KeyPoint] = []
-        self._prev_descriptors: np.ndarray | None = None
 
-    def _detect(self, gray: np.ndarray, above_ground: np.ndarray | None):
+    def process(self, packet: FramePacket) -> FramePacket:
+        packet.keypoints = self.find(packet)
+        return packet
+
+    def close(self) -> None:
+        """Nothing to release (the Stage contract, core/stage.py)."""
+
+    def find(self, packet: FramePacket) -> FrameKeypoints:
+        """The frame's matching image, its above-ground mask and its keypoints there."""
+        gray = cv2.cvtColor(packet.frame.image, cv2.COLOR_BGR2GRAY)
+        scale = self.downscale(gray.shape[1])
+        if scale > 1:
+            gray = cv2.resize(gray, (gray.shape[1] // scale, gray.shape[0] // scale), interpolation=cv2.INTER_AREA)
+        above_ground = self._above_ground(packet, gray.shape[::-1])
+        keypoints, descriptors = self._detect(gray, above_ground)
+        return FrameKeypoints(gray, scale, above_ground, keypoints, descriptors)
+
+    def downscale(self, width: int) -> int:
+        """The matching image is 1/N of a frame ``width`` wide: ``downscale``, or more where the
+        frame is wider than ``max_width`` times it (the window and ORB's budget are sized for the
+        matching image, not for the source)."""
+        scale = max(1, self.config.downscale)
+        if self.config.max_width > 0:
+            scale = max(scale, -(-width // self.config.max_width))
+        return scale
+
+    def _detect(self, gray: np.ndarray, above_ground: np.ndarray | None) -> tuple[list, np.ndarray | None]:
         if above_ground is None:
-            return self.orb_scene.detectAndCompute(gray, None)
+            keypoints, descriptors = self.orb_scene.detectAndCompute(gray, None)
+            return list(keypoints), descriptors
         object_mask = above_ground.astype(np.uint8) * 255
         kp_obj, des_obj = self.orb_objects.detectAndCompute(gray, object_mask)
         kp_bg, des_bg = self.orb_scene.detectAndCompute(gray, cv2.bitwise_not(object_mask))
@@ -85,42 +114,47 @@ class FeatureMatcher:
             heights = cv2.resize(heights, size, interpolation=cv2.INTER_NEAREST)
         return heights > self.height_threshold_m
 
+
+class FeatureMatcher:
+    """``packet.matches``: the last frame's keypoints tracked into this frame. Uses the keypoints
+    stage's ``packet.keypoints``, or finds them itself where no such stage ran (a chain without
+    it, a live frame that reused the last network outputs)."""
+
+    def __init__(self, config: MatchingConfig, ground: GroundConfig):
+        self.config = config
+        self.detector = KeypointDetector(config, ground)
+        self.orb_describe = cv2.ORB_create(nlevels=CONSTANTS.orb_levels)
+        self.lk_params = dict(winSize=(config.lk_window, config.lk_window), maxLevel=config.lk_levels,
+                              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+        self._previous: FrameKeypoints | None = None
+
     def downscale(self, width: int) -> int:
-        """The matching image is 1/N of a frame ``width`` wide: ``downscale``, or more where the
-        frame is wider than ``max_width`` times it (the window and ORB's budget are sized for the
-        matching image, not for the source)."""
-        scale = max(1, self.config.downscale)
-        if self.config.max_width > 0:
-            scale = max(scale, -(-width // self.config.max_width))
-        return scale
+        """See ``KeypointDetector.downscale``."""
+        return self.detector.downscale(width)
 
     def process(self, packet: FramePacket) -> FramePacket:
-        gray = cv2.cvtColor(packet.frame.image, cv2.COLOR_BGR2GRAY)
-        scale = self.downscale(gray.shape[1])
-        if scale > 1:
-            gray = cv2.resize(gray, (gray.shape[1] // scale, gray.shape[0] // scale), interpolation=cv2.INTER_AREA)
-        above_ground = self._above_ground(packet, gray.shape[::-1])
-        if self._prev_gray is not None and self._prev_keypoints and self._prev_gray.shape == gray.shape:
-            packet.matches = self._match(gray, above_ground)
-            if scale > 1:
-                packet.matches = self._to_source_pixels(packet.matches, scale)
-        self._prev_gray = gray
-        self._prev_keypoints, self._prev_descriptors = self._detect(gray, above_ground)
+        current = packet.keypoints or self.detector.find(packet)
+        previous = self._previous
+        if previous is not None and previous.keypoints and previous.gray.shape == current.gray.shape:
+            packet.matches = self._match(previous, current)
+            if current.scale > 1:
+                packet.matches = self._to_source_pixels(packet.matches, current.scale)
+        self._previous = current
         return packet
 
     def close(self) -> None:
         """Nothing to release (the Stage contract, core/stage.py)."""
 
-    def _match(self, gray: np.ndarray, above_ground: np.ndarray | None) -> FeatureMatches:
-        prev = np.float32([kp.pt for kp in self._prev_keypoints]).reshape(-1, 1, 2)
-        curr, status, _ = cv2.calcOpticalFlowPyrLK(self._prev_gray, gray, prev, None, **self.lk_params)
-        back, status_back, _ = cv2.calcOpticalFlowPyrLK(gray, self._prev_gray, curr, None, **self.lk_params)
+    def _match(self, previous: FrameKeypoints, current: FrameKeypoints) -> FeatureMatches:
+        prev = np.float32([kp.pt for kp in previous.keypoints]).reshape(-1, 1, 2)
+        curr, status, _ = cv2.calcOpticalFlowPyrLK(previous.gray, current.gray, prev, None, **self.lk_params)
+        back, status_back, _ = cv2.calcOpticalFlowPyrLK(current.gray, previous.gray, curr, None, **self.lk_params)
         fb_error = np.linalg.norm((back - prev).reshape(-1, 2), axis=1)
         keep = (status.ravel() == 1) & (status_back.ravel() == 1) & (fb_error < CONSTANTS.forward_backward_max_px)
-        keep &= self._descriptors_agree(gray, curr.reshape(-1, 2), keep)
+        keep &= self._descriptors_agree(previous, current.gray, curr.reshape(-1, 2), keep)
         prev_pts = prev.reshape(-1, 2)[keep]
         curr_pts = curr.reshape(-1, 2)[keep]
-        on_object = self._on_object(curr_pts, above_ground)
+        on_object = self._on_object(curr_pts, current.above_ground)
         motion, inliers = self._camera_motion(prev_pts[~on_object], curr_pts[~on_object])
         # Background points that disagree with the camera motion are mismatches: drop them.
         keep_bg = np.ones(len(prev_pts), bool)
@@ -139,20 +173,21 @@ class FeatureMatcher:
                               curr_pts=matches.curr_pts * scale + offset,
                               on_object=matches.on_object, camera_motion=motion)
 
-    def _descriptors_agree(self, gray: np.ndarray, curr: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    def _descriptors_agree(self, previous: FrameKeypoints, gray: np.ndarray, curr: np.ndarray,
+                           candidates: np.ndarray) -> np.ndarray:
         """ORB check: the descriptor at the tracked position must still match the original."""
         agree = np.zeros(len(curr), bool)
-        if self._prev_descriptors is None:
+        if previous.descriptors is None:
             return agree
         idx = np.flatnonzero(candidates)
-        moved = [cv2.KeyPoint(float(curr[i, 0]), float(curr[i, 1]), self._prev_keypoints[i].size,
-                              self._prev_keypoints[i].angle, 0, self._prev_keypoints[i].octave, int(i))
+        moved = [cv2.KeyPoint(float(curr[i, 0]), float(curr[i, 1]), previous.keypoints[i].size,
+                              previous.keypoints[i].angle, 0, previous.keypoints[i].octave, int(i))
                  for i in idx]
         moved, descriptors = self.orb_describe.compute(gray, moved)
         if descriptors is None:
             return agree
         original = np.array([kp.class_id for kp in moved])
-        distance = np.unpackbits(descriptors ^ self._prev_descriptors[original], axis=1).sum(axis=1)
+        distance = np.unpackbits(descriptors ^ previous.descriptors[original], axis=1).sum(axis=1)
         agree[original[distance <= self.config.max_hamming]] = True
         return agree
 

@@ -181,6 +181,10 @@ class PyAVFileSource(FrameSource):
         # AVI stores no presentation times, only a frame rate: with B-frames FFmpeg hands out
         # decode-order stamps (1, 3, 4, 2, ...). Its frames are counted instead.
         tracker = DamageTracker(self.fps, use_stamps="avi" not in container.format.name.split(","))
+        # One converter for the whole decode: ``VideoFrame.to_ndarray(format=...)`` builds a new
+        # one, and with it FFmpeg's colour conversion context, on every frame (640x360: 1-2 ms of
+        # CPU a frame against 0.1; the same pixels, bit for bit).
+        to_bgr = av.video.reformatter.VideoReformatter()
         with av.logging.Capture(local=False) as logs:
             packets = container.demux(stream)
             while True:
@@ -211,7 +215,7 @@ class PyAVFileSource(FrameSource):
                         self.stats.failed += frame.lost_before
                         self.stats.damaged += bool(frame.frame.damage)
                     if keep(frame.frame.index):
-                        frame.frame.image = av_frame.to_ndarray(format="bgr24")
+                        frame.frame.image = to_bgr.reformat(av_frame, format="bgr24").to_ndarray()
                     yield frame.frame
 
     def _images_at(self, indices: list[int]) -> Iterator[tuple[int, np.ndarray]]:

@@ -18,7 +18,7 @@ def test_true_heights_learn_no_network_scale():
                              t=np.array([0.0, 0.0, 5.0]), height_m=5.0)
     sequence = SimpleNamespace(meta=SimpleNamespace(camera=camera))
     chain = build_eval_chain(sequence, Config(), "oracle", geometry=True)
-    assert [name for name, _ in chain.stages] == ["heights", "matching", "objects", "geometry", "tracking"]
+    assert [name for name, _ in chain.stages] == ["heights", "keypoints", "matching", "objects", "geometry", "tracking"]
     assert isinstance(chain.stage("heights"), OracleHeights)
     assert chain.stage("geometry").network_scale is None
     assert chain.stage("tracking").tracker.config.network_bias_share == 0.0

@@ -21,11 +21,11 @@ def _camera(**changes) -> CameraInfo:
 
 
 @pytest.mark.parametrize("camera, geometry, names", [
-    (_camera(), True, ["ground", "height", "matching", "objects", "tracking"]),
-    (_camera(**POSE), True, ["ground", "height", "matching", "objects", "geometry", "tracking"]),
-    (_camera(**POSE), False, ["ground", "height", "matching", "objects", "tracking"]),
+    (_camera(), True, ["ground", "height", "keypoints", "matching", "objects", "tracking"]),
+    (_camera(**POSE), True, ["ground", "height", "keypoints", "matching", "objects", "geometry", "tracking"]),
+    (_camera(**POSE), False, ["ground", "height", "keypoints", "matching", "objects", "tracking"]),
     (_camera(dist=np.array([-0.3, 0.1, 0, 0, 0])),
-     True, ["undistortion", "ground", "height", "matching", "objects", "tracking"]),
+     True, ["undistortion", "ground", "height", "keypoints", "matching", "objects", "tracking"]),
 ])
 def test_the_camera_decides_undistortion_and_geometry(camera, geometry, names):
     chain = build_stage_chain(Config(), camera, geometry=geometry)

@@ -1,10 +1,12 @@
+import copy
+
 import cv2
 import numpy as np
 import pytest
 
 from core.config import GroundConfig, MatchingConfig
 from core.packets import CameraInfo, Frame, FramePacket
-from stages.feature_matching import FeatureMatcher
+from stages.feature_matching import FeatureMatcher, KeypointDetector
 
 
 def _scene(shift_x=0.0, object_x=100):
@@ -96,3 +98,21 @@ def test_a_wide_frame_reports_points_in_source_pixels():
     points = packet.matches.curr_pts
     assert len(points) > 0 and points[:, 0].max() > 640 and points[:, 1].max() > 360
     assert np.allclose(packet.matches.curr_pts, packet.matches.prev_pts, atol=1.0)
+
+
+def test_keypoints_found_by_their_own_stage_give_the_matches_the_matcher_finds_alone():
+    """The overlapped run finds keypoints on the network's thread and matches on the caller's:
+    the matches must be those of the matcher finding its own keypoints."""
+    frames = [_packet(i, *_scene(shift, object_x=100 + 4 * i)) for i, shift in enumerate([0.0, 2.0, 3.5])]
+    alone, matcher = FeatureMatcher(MatchingConfig(), GroundConfig()), FeatureMatcher(MatchingConfig(), GroundConfig())
+    detector = KeypointDetector(MatchingConfig(), GroundConfig())
+    for index, frame in enumerate(frames):
+        expected = alone.process(copy.copy(frame)).matches
+        packet = detector.process(copy.copy(frame))
+        assert packet.keypoints is not None and len(packet.keypoints.keypoints) > 50
+        got = matcher.process(packet).matches
+        if index == 0:
+            assert expected is None and got is None
+            continue
+        for field in ("prev_pts", "curr_pts", "on_object", "camera_motion"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(expected, field))

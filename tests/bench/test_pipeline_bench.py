@@ -1,0 +1,20 @@
+"""bench.pipeline_bench's CPU clock: CPU per frame over the frames after the first."""
+
+import math
+
+from bench.pipeline_bench import CpuClock
+
+
+def test_cpu_per_frame_counts_from_the_first_processed_frame_not_from_start_up():
+    readings = iter([10.0, 10.03, 10.05, 10.09])       # CPU seconds at each frame's callback
+    cpu = CpuClock(clock=lambda: next(readings))
+    for frame in range(4):
+        cpu.on_frame(frame, 4, 0.0)
+    assert math.isclose(cpu.ms_per_frame(), 30.0)        # 90 ms over the three frames after the first
+
+
+def test_fewer_than_two_frames_give_no_number():
+    cpu = CpuClock(clock=lambda: 1.0)
+    assert math.isnan(cpu.ms_per_frame())
+    cpu.on_frame(0, 1, 0.0)
+    assert math.isnan(cpu.ms_per_frame())
