@@ -508,9 +508,10 @@ class TrainV2Config:
     detection_blocks: int = 1
     """Residual blocks deepening the detection head (heightnet/contact_model.py ``DetectionHead``;
     the committed run grew one at 604,000 images)."""
-    detection_motion: bool = False
+    detection_motion: bool = True
     """The detection head also reads each cell's change since the last frame (a motion path that
-    starts at zero; the ONNX file then takes the previous frame as a second input)."""
+    starts at zero; the ONNX file then takes the previous frame as a second input). Grown at step
+    86,250 (690,000 images) of the committed run."""
     head_only: bool = True
     """Train the detection head alone: the rest of the network keeps its averaged weights,
     BatchNorm included, so heights stay as they are and a step costs about half (no backward pass
@@ -526,9 +527,10 @@ class TrainV2Config:
     offsets can lean towards the vertical vanishing point (heightnet/contact_model.py)."""
     crop_probability: float = 0.5
     """Share of samples that are native-resolution windows around a mover (else whole frames)."""
-    appearance: float = 0.0
+    appearance: float = 0.6
     """Share of pairs whose look is randomised (gamma, channels, grey, blur, texture, noise, JPEG;
-    heightnet/appearance.py) so that the network cannot lean on the generator's flat renders."""
+    heightnet/appearance.py) so that the network cannot lean on the generator's flat renders
+    (the committed run's head from step 86,250; 0 = the look as rendered)."""
     max_matches: int = 64
     """Matched points per frame pair for the height-consistency loss."""
     checkpoint_every: int = 250
