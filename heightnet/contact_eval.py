@@ -68,16 +68,17 @@ def predict(net: torch.nn.Module, rgb: np.ndarray, width: int, height: int,
     """Offsets H x W x 2 (input pixels), camera-head outputs (6) and, with a detection head,
     the detected boxes (input pixels) for one whole frame. ``previous_rgb``: the frame before,
     for a detection head that reads motion (None: no change, as on a run's first frame)."""
-    x = torch.from_numpy(normalise(cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)))[None]
+    def network_input(image: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(normalise(cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)))[None]
+
     arch = getattr(net, "arch", None)
     channels, motion = None, {}
     if arch is not None and arch.camera_channels:
         channels = torch.from_numpy(camera_channels(camera, width, height))[None]
     if arch is not None and arch.detection_motion and previous_rgb is not None:
-        motion["previous"] = torch.from_numpy(normalise(cv2.resize(previous_rgb, (width, height),
-                                                                   interpolation=cv2.INTER_AREA)))[None]
+        motion["previous"] = network_input(previous_rgb)
     with torch.no_grad():
-        offsets, _, cam, *detection = net(x, channels, **motion)
+        offsets, _, cam, *detection = net(network_input(rgb), channels, **motion)
     found = None
     if detection:
         centre, box = (t[0].numpy() for t in detection)
