@@ -13,7 +13,6 @@ Model loading and start-up are excluded: they happen once per run, not per frame
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 import time
 from dataclasses import dataclass
@@ -65,10 +64,6 @@ class CpuClock:
         return (self.last - self.first) * 1000.0 / (self.calls - 1)
 
 
-def cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 def decode_fps(clip: Path, frames: int) -> float:
     capture = cv2.VideoCapture(str(clip), cv2.CAP_FFMPEG)
     count, start = 0, time.perf_counter()
@@ -81,6 +76,7 @@ def decode_fps(clip: Path, frames: int) -> float:
 def main() -> None:
     from core.config import load_config
     from pipeline.runner import run_pipeline
+    from stages.heightnet_model import cores
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("clip", nargs="?", type=Path)

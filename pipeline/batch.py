@@ -347,10 +347,10 @@ def run_batch(specs: list[str], config: Config, options: BatchOptions) -> BatchR
     from pipeline.batch_engines import PARTIAL_FOLDER
     from pipeline.batch_manifest import Manifest, config_fingerprint
     from pipeline.batch_tables import write_tables
-    from stages.heightnet_model import most_threads
+    from stages.heightnet_model import cores as usable_cores, most_threads
 
     _check_config(config)
-    cores = len(os.sched_getaffinity(0))
+    cores = usable_cores()
     engine = _make_engine(options, cores)
     out_dir = options.out_dir.resolve()
     inputs = find_inputs(specs, out_dir)

@@ -397,16 +397,16 @@ def most_threads(threads: int) -> int:
     """The most ONNX Runtime threads a ``height.threads`` setting gives a model: itself, or for 0 (by
     the model) the larger of the two the models get, at most the cores there are. Callers that
     share the cores out between videos or cameras divide this."""
-    return threads or min(max(CONSTANTS.auto_threads_v1, CONSTANTS.auto_threads_v2), _cores())
+    return threads or min(max(CONSTANTS.auto_threads_v1, CONSTANTS.auto_threads_v2), cores())
 
 
 def _auto_threads(info: ModelInfo) -> int:
     """``threads = 0``: the model's share of the cores (``CONSTANTS.auto_threads_v1`` / ``_v2``)."""
     wanted = CONSTANTS.auto_threads_v2 if info.contact else CONSTANTS.auto_threads_v1
-    return max(1, min(wanted, _cores()))
+    return max(1, min(wanted, cores()))
 
 
-def _cores() -> int:
+def cores() -> int:
     """The cores this process may run on (its affinity, where the system tells it)."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
