@@ -133,7 +133,7 @@ class FeatureMatcher:
         return self.detector.downscale(width)
 
     def process(self, packet: FramePacket) -> FramePacket:
-        current = packet.keypoints or self.detector.find(packet)
+        current = packet.keypoints if packet.keypoints is not None else self.detector.find(packet)
         previous = self._previous
         if previous is not None and previous.keypoints and previous.gray.shape == current.gray.shape:
             packet.matches = self._match(previous, current)
