@@ -9,6 +9,7 @@ v1 network of the shipped model ([train]).
 from __future__ import annotations
 
 import argparse
+import errno
 from pathlib import Path
 
 
@@ -79,28 +80,50 @@ def train_v2(args: argparse.Namespace, config) -> int:
                              out=args.out or config.train_v2.out)
     progress = not args.no_progress
 
-    def cached(root: str, command: str, split: str, count: int):
-        folder = Path(root)
-        if not (folder / "manifest.json").is_file():
-            if not command:
-                raise ConfigError(f"no synth dataset at {folder} and no command to make it")
-            words = shlex.split(command)
-            if words[:2] != ["heightpipe", "synth"]:
-                raise ConfigError(f"a data command must be a 'heightpipe synth ...' command, got {command!r}")
-            print(f"{folder} is missing: rendering it first ({command})")
-            from synth import cli as synth_cli
+    def cached(roots: str, command: str, split: str, count: int):
+        """The contact caches of the comma-separated ``roots``' ``split`` sequences, the first
+        ``count`` by name over all of them (0 = all). A missing folder is rendered with ``command``
+        if that is where the command writes (a fresh clone's configured data), else an error: a
+        mistyped folder rendered the configured data into another folder."""
+        chosen = []
+        for root in [part.strip() for part in roots.split(",") if part.strip()]:
+            folder = Path(root)
+            if not (folder / "manifest.json").is_file():
+                if not command or _writes_to(command) != folder:
+                    raise ConfigError(f"no synth dataset at {folder} (make one with `heightpipe synth`)")
+                render(folder, command)
+            sequences = sorted(list_sequences(folder, split=split), key=lambda s: s.name)
+            if not sequences:
+                raise ConfigError(f"{folder} has no {split}-split sequences")
+            chosen += [(folder, sequence) for sequence in sequences]
+        if not chosen:
+            raise ConfigError("train_v2.data names no dataset")
+        chosen = chosen[:count or None]
+        caches = []
+        for folder in dict.fromkeys(folder for folder, _ in chosen):
+            try:
+                caches += build_contact_cache([s for f, s in chosen if f == folder], folder / ".contact_cache",
+                                              progress=progress, workers=v2.loader_workers)
+            except OSError as exc:
+                if exc.errno != errno.EMFILE:
+                    raise
+                # Six memory-mapped arrays a sequence, each holding a file open.
+                raise ConfigError(f"{len(chosen)} sequences open more files than this machine allows "
+                                  f"(ulimit -n): name fewer (train_v2.sequences, fewer --data folders)") from None
+        return caches
 
-            parser = argparse.ArgumentParser(prog="heightpipe synth")
-            synth_cli.add_arguments(parser)
-            status = synth_cli.main(parser.parse_args(words[2:] + ([] if progress else ["--no-progress"])),
-                                    config)
-            if status:
-                raise ConfigError(f"rendering {folder} failed (exit {status})")
-        sequences = sorted(list_sequences(folder, split=split), key=lambda s: s.name)
-        if not sequences:
-            raise ConfigError(f"{folder} has no {split}-split sequences")
-        return build_contact_cache(sequences[:count or None], folder / ".contact_cache", progress=progress,
-                                   workers=v2.loader_workers)
+    def render(folder: Path, command: str) -> None:
+        words = shlex.split(command)
+        if words[:2] != ["heightpipe", "synth"]:
+            raise ConfigError(f"a data command must be a 'heightpipe synth ...' command, got {command!r}")
+        print(f"{folder} is missing: rendering it first ({command})")
+        from synth import cli as synth_cli
+
+        parser = argparse.ArgumentParser(prog="heightpipe synth")
+        synth_cli.add_arguments(parser)
+        status = synth_cli.main(parser.parse_args(words[2:] + ([] if progress else ["--no-progress"])), config)
+        if status:
+            raise ConfigError(f"rendering {folder} failed (exit {status})")
 
     train_set = cached(v2.data, v2.data_command, "train", v2.sequences)
     held_out = cached(v2.test_data, v2.test_command, "test", v2.test_sequences) if v2.test_data else []
@@ -114,3 +137,11 @@ def train_v2(args: argparse.Namespace, config) -> int:
     print(f"step {result['step']} ({result['images']} images): state {out / 'checkpoint.pt'}; "
           f"losses {out / 'log.csv'}; held-out curve {out / 'curve.csv'}")
     return 0
+
+
+def _writes_to(command: str) -> Path | None:
+    """The folder a ``heightpipe synth`` command writes (its ``--out``), None if it names none."""
+    import shlex
+
+    words = shlex.split(command)
+    return Path(words[words.index("--out") + 1]) if "--out" in words[:-1] else None

@@ -182,6 +182,7 @@ class ContactSampling:
     camera_channels: bool = False
     detection: bool = False            # centre heatmap and box targets (heightnet/detection_targets.py)
     appearance: float = 0.0            # share of pairs whose look is randomised (heightnet/appearance.py)
+    still_pairs: float = 0.0           # share of pairs shown as one frame twice: no motion anywhere
 
 
 class ContactPairDataset:
@@ -244,11 +245,13 @@ class ContactPairDataset:
         W, H = self.size
         look = draw_appearance(rng, self.sampling.appearance if self.augment else 0.0)
         texture = pair_texture(rng, look, W, H)
+        # Drawn only where asked for: a run without still pairs draws the pairs it drew before.
+        still = bool(self.augment and self.sampling.still_pairs > 0 and rng.random() < self.sampling.still_pairs)
         sx, sy = W / w, H / h
         camera = seq.camera.window(x0, y0, w, h, W, H, flip)
         images, offsets, heights, grounds, instances = [], [], [], [], []
         detection: dict[str, list[np.ndarray]] = {"centre": [], "box": [], "box_mask": [], "ignore": []}
-        for frame in (t - 1, t):
+        for frame in (t, t) if still else (t - 1, t):
             win = (slice(y0, y0 + h), slice(x0, x0 + w))
             if self.sampling.detection:
                 semantic = np.asarray(seq.semantic[frame][win])
@@ -274,6 +277,8 @@ class ContactPairDataset:
             grounds.append(gnd[None].astype(np.uint8))
             instances.append(ins[None].astype(np.int32))
         padded, valid = window_matches(seq.matches(t), (x0, y0, w, h), self.size, flip, rng, self.max_matches)
+        if still:
+            valid[:] = False    # the points matched from t-1 to t: no pair of this one
         sample = {"image": np.stack(images), "offsets": np.stack(offsets), "height": np.stack(heights),
                   "ground": np.stack(grounds), "instance": np.stack(instances),
                   "K": camera.K.astype(np.float32), "R": camera.R.astype(np.float32),

@@ -122,7 +122,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
 
     sampling = ContactSampling(crop_probability=config.crop_probability,
                                camera_channels=config.camera_channels, detection=config.detection,
-                               appearance=config.appearance)
+                               appearance=config.appearance, still_pairs=config.still_pairs)
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
                                  config.max_matches, config.seed)
     per_epoch = max(1, len(dataset) // config.batch_size)

@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -61,6 +62,25 @@ def test_samples_decode_to_their_own_heights(contact_sequences, sampling):
         assert sample["image"].shape == (2, 3, 48, 64)
         assert sample["camera_valid"] == (sampling.crop_probability == 0)
         assert ("camera_channels" in sample) == sampling.camera_channels
+
+
+def test_still_pairs_show_one_frame_twice_and_leave_the_other_pairs_as_drawn(contact_sequences):
+    """A still pair is the pair's second frame twice (no motion anywhere, its labels both the
+    second frame's, no matched points); with the option at 0 every pair is drawn bit for bit as
+    before it existed (its draw is made only where asked for), so committed runs reproduce."""
+    plain = ContactPairDataset(contact_sequences, 64, 48, ContactSampling(detection=True), seed=3)
+    never = ContactPairDataset(contact_sequences, 64, 48, ContactSampling(detection=True, still_pairs=0.0), seed=3)
+    always = ContactPairDataset(contact_sequences, 64, 48, ContactSampling(detection=True, still_pairs=1.0), seed=3)
+    for item in range(len(plain)):
+        before, same, still = plain[item], never[item], always[item]
+        for key in before:
+            assert np.array_equal(before[key], same[key], equal_nan=True), key
+        for key in ("image", "height", "instance", "det_centre", "det_box"):
+            assert np.array_equal(still[key][0], still[key][1], equal_nan=True), key
+        # Its frame is the pair's second: the same instances as the plain pair's second frame.
+        assert np.array_equal(still["instance"][1], before["instance"][1])
+        assert not still["match_valid"].any() and before["match_valid"].any()
+        assert not np.array_equal(before["image"][0], before["image"][1])
 
 
 def test_resumed_training_equals_an_uninterrupted_run(contact_sequences, tmp_path):
@@ -450,3 +470,70 @@ def test_a_state_saved_with_one_optimiser_group_resumes_with_the_head_in_its_own
     for name, p in fresh.named_parameters():
         assert torch.allclose(grouped.state[p]["exp_avg"], before[name], atol=1e-3, rtol=1e-2), name
     assert any(name.startswith("detection_head.") for name, _ in fresh.named_parameters())
+
+
+def test_a_missing_v2_data_folder_is_an_error_unless_the_data_command_writes_it(tmp_path, monkeypatch):
+    """`heightpipe train --data A,B` (v2) reads every folder named; a missing one is one clear
+    error, and the configured data command (which writes its own --out) is not run for it: it
+    rendered the configured data into another folder than the one named."""
+    import argparse
+
+    from core.config import load_config
+    from core.errors import ConfigError
+    from heightnet import cli_train
+
+    monkeypatch.chdir(tmp_path)
+    config = load_config(overrides=["train.formulation=contact"])
+    parser = argparse.ArgumentParser()
+    cli_train.add_arguments(parser)
+    args = parser.parse_args(["--data", "data/mistyped", "--out", "run", "--no-progress"])
+    with pytest.raises(ConfigError, match="no synth dataset at data/mistyped"):
+        cli_train.train_v2(args, config)
+    assert not (tmp_path / "data").exists()
+    assert cli_train._writes_to(config.train_v2.data_command) == Path(config.train_v2.data)
+    assert cli_train._writes_to("heightpipe synth --sequences 3") is None
+
+
+def test_v2_data_folders_are_read_in_turn_and_too_many_files_is_one_clear_error(tmp_path, monkeypatch):
+    """`--data A,B`: A's sequences then B's, the first ``train_v2.sequences`` over both, each
+    folder cached in its own place; a machine out of file handles (every cached sequence
+    memory-maps its arrays) is one line saying what to do, not a traceback."""
+    import argparse
+    import errno
+    from types import SimpleNamespace
+
+    import heightnet.contact_data
+    import heightnet.contact_train
+    import synth.dataset
+    from core.config import load_config
+    from core.errors import ConfigError
+    from heightnet import cli_train
+
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "manifest.json").write_text("{}")
+    monkeypatch.setattr(synth.dataset, "list_sequences", lambda folder, split: [
+        SimpleNamespace(name=f"{Path(folder).name}{i}") for i in (1, 0)])
+    cached = []
+    monkeypatch.setattr(heightnet.contact_data, "build_contact_cache",
+                        lambda sequences, cache_dir, **kw: cached.append((cache_dir, [s.name for s in sequences]))
+                        or [s.name for s in sequences])
+    trained = []
+    monkeypatch.setattr(heightnet.contact_train, "train_contact",
+                        lambda config, train_set, held_out, **kw: trained.append(train_set) or {"step": 0, "images": 0})
+    config = load_config(overrides=["train.formulation=contact", "train_v2.sequences=3", "train_v2.test_data="])
+    parser = argparse.ArgumentParser()
+    cli_train.add_arguments(parser)
+    args = parser.parse_args(["--data", f"{tmp_path / 'a'}, {tmp_path / 'b'}", "--out", str(tmp_path / "run"),
+                              "--no-progress"])
+    assert cli_train.train_v2(args, config) == 0
+    assert trained == [["a0", "a1", "b0"]]
+    assert cached == [(tmp_path / "a" / ".contact_cache", ["a0", "a1"]),
+                      (tmp_path / "b" / ".contact_cache", ["b0"])]
+
+    def out_of_files(sequences, cache_dir, **kw):
+        raise OSError(errno.EMFILE, "Too many open files")
+
+    monkeypatch.setattr(heightnet.contact_data, "build_contact_cache", out_of_files)
+    with pytest.raises(ConfigError, match="more files than this machine allows"):
+        cli_train.train_v2(args, config)
