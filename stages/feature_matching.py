@@ -128,10 +128,6 @@ class FeatureMatcher:
                               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
         self._previous: FrameKeypoints | None = None
 
-    def downscale(self, width: int) -> int:
-        """See ``KeypointDetector.downscale``."""
-        return self.detector.downscale(width)
-
     def process(self, packet: FramePacket) -> FramePacket:
         current = packet.keypoints if packet.keypoints is not None else self.detector.find(packet)
         previous = self._previous

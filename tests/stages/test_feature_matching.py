@@ -84,8 +84,8 @@ def test_a_hidden_background_gives_no_camera_motion():
                          [(320, 320, 2), (640, 320, 2), (1920, 320, 6), (1280, 320, 4), (1921, 320, 7),
                           (1920, 0, 2)])
 def test_wide_frames_are_matched_on_an_image_at_most_max_width_wide(width, max_width, expected):
-    matcher = FeatureMatcher(MatchingConfig(downscale=2, max_width=max_width), GroundConfig())
-    assert matcher.downscale(width) == expected
+    detector = KeypointDetector(MatchingConfig(downscale=2, max_width=max_width), GroundConfig())
+    assert detector.downscale(width) == expected
 
 
 def test_a_wide_frame_reports_points_in_source_pixels():
