@@ -221,6 +221,14 @@ class TrackingConfig:
     """Weight of matched-point votes in the association cost (IoU has weight 1)."""
     min_vote_share: float = 0.3
     """A pair below iou_gate is still allowed when this share of the track's points votes for it."""
+    colour_gate: float = 0.4
+    """A box of the network's head whose colour signature (``stages.colour_signature``: Hellinger
+    distance, 0 same colours, 1 none in common) lies further than this from a track's is not that
+    track's object, unless it lies on the track's prediction (IoU >= 0.7); 1 = off (blobs carry no
+    colours: ``stages.tracking._one_object``). Walkers side by side swapped tracks on box overlap
+    and motion alone (Oxford Town Centre)."""
+    colour_weight: float = 0.5
+    """Weight of that distance in the association cost (IoU has weight 1)."""
     height_gate_sigma: float = 4.0
     """Height measurements further than this many standard deviations from the track are outliers."""
     stature_window: int = 10

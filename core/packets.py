@@ -234,6 +234,10 @@ class Detection:
     """Foot point on the ground plane in world metres (calibrated cameras only)."""
     mask: np.ndarray | None = None
     """Bool mask of the object's pixels inside its box (box-sized), where the extractor has one."""
+    colour: np.ndarray | None = None
+    """The object's colour signature (``stages.colour_signature``), set by the tracking stage where
+    its colour cue is on, for the detection head's boxes; None where unknown (a blob, a damaged
+    frame)."""
     outline: np.ndarray | None = None
     """The mask without what the foreground's growth added above the object (box-sized): the
     outline the vehicle geometry reads."""

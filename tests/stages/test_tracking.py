@@ -585,3 +585,42 @@ def test_a_weak_box_carries_on_a_track_seen_last_frame_and_never_starts_one(gap,
     assert (track.track_id, track.updated) == (1, carried)
     # The weak box on nothing is no object this frame; the one that carried the track is.
     assert [d.box[1] for d in packet.detections] == ([100] if carried else [])
+
+
+@pytest.mark.parametrize("colours, taken", [(True, "red"), (False, "blue")])
+def test_a_box_in_another_objects_colours_does_not_carry_on_a_track(colours, taken):
+    """A red walker's track; then a blue walker's box lies nearer its prediction than the red
+    walker's own (a second walker stepping alongside: Oxford's side-by-side pairs)."""
+    red_colour, blue_colour = np.eye(128)[5], np.eye(128)[90]         # signatures of one bin each
+    config = TrackingConfig(min_hits=1) if colours else TrackingConfig(min_hits=1, colour_gate=1.0, colour_weight=0.0)
+    tracker = ObjectTracker(config)
+    for i in range(10):
+        walker = _detection(100 + 4 * i, 60, 1.75)
+        walker.colour = red_colour
+        tracker.update([walker])
+    (track,) = tracker.tracks
+    red, blue = _detection(132, 60, 1.75), _detection(146, 60, 1.75)      # the prediction is at x = 140
+    red.colour, blue.colour = red_colour, blue_colour
+    tracker.update([blue, red])
+    assert track.last_observation == {"red": red.box, "blue": blue.box}[taken]
+
+
+def test_the_tracking_stage_reads_each_boxs_colours_from_the_frame():
+    stage = TrackingStage(TrackingConfig(min_hits=1))
+    image = np.full((240, 320, 3), 128, np.uint8)
+    image[60:140, 100:130] = (30, 30, 200)
+    red, street, blob = _detection(100, 60, 1.75), _detection(200, 60, 1.75), _detection(250, 60, 1.75)
+    blob.blob = 1                       # a blob's box holds whatever moved together: no colours
+    stage.process(FramePacket(Frame(0, 0.0, image), CameraInfo(320, 240), detections=[red, street, blob]))
+    assert red.colour.argmax() != street.colour.argmax()
+    assert red.colour.max() == street.colour.max() == pytest.approx(1.0)
+    assert blob.colour is None
+
+
+def test_damaged_frames_give_their_boxes_no_colours():
+    stage = TrackingStage(TrackingConfig(min_hits=1))
+    image = np.full((240, 320, 3), 128, np.uint8)
+    for damage, expected in (("", False), ("decoder flags it corrupt", True)):
+        detection = _detection(10, 10, 1.7)
+        stage.process(FramePacket(Frame(0, 0.0, image, damage=damage), CameraInfo(320, 240), detections=[detection]))
+        assert (detection.colour is None) == expected
