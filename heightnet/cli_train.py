@@ -80,9 +80,10 @@ def train_v2(args: argparse.Namespace, config) -> int:
                              out=args.out or config.train_v2.out)
     progress = not args.no_progress
 
-    def cached(roots: str, command: str, split: str, count: int):
-        """The contact caches of the comma-separated ``roots``' ``split`` sequences, the first
-        ``count`` by name over all of them (0 = all). A missing folder is rendered with ``command``
+    def cached(key: str, roots: str, command: str, split: str, count: int):
+        """The contact caches of the ``split`` sequences in the comma-separated folders ``roots``
+        (the key ``train_v2.<key>``, named in errors), the first ``count`` by name over all of them
+        (0 = all). A missing folder is rendered with ``command``
         if that is where the command writes (a fresh clone's configured data), else an error: a
         mistyped folder rendered the configured data into another folder."""
         chosen = []
@@ -97,7 +98,7 @@ def train_v2(args: argparse.Namespace, config) -> int:
                 raise ConfigError(f"{folder} has no {split}-split sequences")
             chosen += [(folder, sequence) for sequence in sequences]
         if not chosen:
-            raise ConfigError("train_v2.data names no dataset")
+            raise ConfigError(f"train_v2.{key} names no dataset")
         chosen = chosen[:count or None]
         caches = []
         for folder in dict.fromkeys(folder for folder, _ in chosen):
@@ -125,8 +126,8 @@ def train_v2(args: argparse.Namespace, config) -> int:
         if status:
             raise ConfigError(f"rendering {folder} failed (exit {status})")
 
-    train_set = cached(v2.data, v2.data_command, "train", v2.sequences)
-    held_out = cached(v2.test_data, v2.test_command, "test", v2.test_sequences) if v2.test_data else []
+    train_set = cached("data", v2.data, v2.data_command, "train", v2.sequences)
+    held_out = cached("test_data", v2.test_data, v2.test_command, "test", v2.test_sequences) if v2.test_data else []
     try:
         result = train_contact(v2, train_set, held_out, resume=args.resume, progress=progress,
                                max_steps=args.max_steps or None,

@@ -494,6 +494,28 @@ def test_a_missing_v2_data_folder_is_an_error_unless_the_data_command_writes_it(
     assert cli_train._writes_to("heightpipe synth --sequences 3") is None
 
 
+@pytest.mark.parametrize("key", ["data", "test_data"])
+def test_a_v2_data_list_naming_no_folder_says_which_key(tmp_path, monkeypatch, key):
+    import argparse
+    from types import SimpleNamespace
+
+    from core.config import load_config
+    from core.errors import ConfigError
+    from heightnet import cli_train
+
+    monkeypatch.chdir(tmp_path)
+    config = load_config(overrides=["train.formulation=contact", f"train_v2.{key}= , "])
+    parser = argparse.ArgumentParser()
+    cli_train.add_arguments(parser)
+    args = parser.parse_args(["--out", "run", "--no-progress"])
+    if key == "test_data":      # a training set that is there, so the held-out list is read
+        monkeypatch.setattr(cli_train.Path, "is_file", lambda self: True)
+        monkeypatch.setattr("synth.dataset.list_sequences", lambda folder, split: [SimpleNamespace(name="s")])
+        monkeypatch.setattr("heightnet.contact_data.build_contact_cache", lambda seqs, *a, **k: list(seqs))
+    with pytest.raises(ConfigError, match=f"train_v2.{key} names no dataset"):
+        cli_train.train_v2(args, config)
+
+
 def test_v2_data_folders_are_read_in_turn_and_too_many_files_is_one_clear_error(tmp_path, monkeypatch):
     """`--data A,B`: A's sequences then B's, the first ``train_v2.sequences`` over both, each
     folder cached in its own place; a machine out of file handles (every cached sequence
