@@ -83,9 +83,9 @@ def train_v2(args: argparse.Namespace, config) -> int:
     def cached(key: str, roots: str, command: str, split: str, count: int):
         """The contact caches of the ``split`` sequences in the comma-separated folders ``roots``
         (the key ``train_v2.<key>``, named in errors), the first ``count`` by name over all of them
-        (0 = all). A missing folder is rendered with ``command``
-        if that is where the command writes (a fresh clone's configured data), else an error: a
-        mistyped folder rendered the configured data into another folder."""
+        (0 = all). A missing folder is rendered with ``command`` if that is where the command
+        writes (a fresh clone's configured data), else an error: a mistyped folder rendered the
+        configured data into another folder."""
         chosen = []
         for root in [part.strip() for part in roots.split(",") if part.strip()]:
             folder = Path(root)

@@ -685,8 +685,8 @@ def _one_object(detection: Detection, packet: FramePacket) -> bool:
 
     Not a blob's (``Detection.blob``): its box holds whatever moved together this frame, two
     walkers merged or half of one, and with blobs the cue cost held-out HOTA (trk_val20 0.392 ->
-    0.389, trk_test40 0.407 -> 0.405: tracks refused their own object's changed box; docs/results.md,
-    2026-12-06). Not on a damaged frame: concealed pixels are no object's colours."""
+    0.389, trk_test40 0.407 -> 0.405, more objects missed; docs/results.md, 2026-12-06). Not on a
+    damaged frame: concealed pixels are no object's colours."""
     return detection.blob is None and not packet.frame.damage
 
 
