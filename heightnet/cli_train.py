@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import shlex
 from pathlib import Path
 
 
@@ -69,7 +70,6 @@ def main(args: argparse.Namespace, config) -> int:
 def train_v2(args: argparse.Namespace, config) -> int:
     """HeightNet v2: render missing data, cache it, train or resume, print where things are."""
     import dataclasses
-    import shlex
 
     from core.errors import ConfigError
     from heightnet.contact_data import build_contact_cache
@@ -142,7 +142,5 @@ def train_v2(args: argparse.Namespace, config) -> int:
 
 def _writes_to(command: str) -> Path | None:
     """The folder a ``heightpipe synth`` command writes (its ``--out``), None if it names none."""
-    import shlex
-
     words = shlex.split(command)
     return Path(words[words.index("--out") + 1]) if "--out" in words[:-1] else None
