@@ -216,41 +216,46 @@ def _local_worker(slot: int, tasks, events, parent_pid: int) -> None:
 
     Ctrl-C from the terminal reaches every process in the group; workers ignore it and wait
     for the parent's SIGTERM, which run_pipeline turns into a clean stop of the video. A
-    stopped video ends the worker, and so does a parent that is gone.
+    stopped video ends the worker, and so does a parent that is gone. A SIGTERM between videos
+    is remembered too: raised inside a ``__del__``, Python swallows it, and the worker would
+    otherwise go on to the next video.
     """
-    from pipeline.runner import StopRequested
+    from pipeline.runner import StopRequested, swallowed_stops_unprinted
 
     _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    stops: list[str] = []
 
     def stop(signum, _frame):
-        raise StopRequested(signal.Signals(signum).name)
+        stops.append(signal.Signals(signum).name)
+        raise StopRequested(stops[-1])
 
     signal.signal(signal.SIGTERM, stop)
-    try:
-        _warm_up_imports()
-        while True:
-            try:
-                # A timeout, not a blocking get: a signal delivered to one of ONNX Runtime's
-                # threads only runs its Python handler once the main thread wakes up.
-                task = tasks.get(timeout=1.0)
-            except queue.Empty:
-                if os.getppid() != parent_pid:
+    with swallowed_stops_unprinted():
+        try:
+            _warm_up_imports()
+            while not stops:
+                try:
+                    # A timeout, not a blocking get: a signal delivered to one of ONNX Runtime's
+                    # threads only runs its Python handler once the main thread wakes up.
+                    task = tasks.get(timeout=1.0)
+                except queue.Empty:
+                    if os.getppid() != parent_pid:
+                        break
+                    continue
+                if task is None:
+                    return
+
+                def report(frames, total, fps, source=task.source):
+                    events.send((slot, WorkerStatus(slot, source, frames, total, fps)))
+
+                events.send((slot, WorkerStatus(slot, task.source)))
+                result = process_video(task, report)
+                events.send((slot, result))
+                if result.status == INTERRUPTED:
                     break
-                continue
-            if task is None:
-                return
-
-            def report(frames, total, fps, source=task.source):
-                events.send((slot, WorkerStatus(slot, source, frames, total, fps)))
-
-            events.send((slot, WorkerStatus(slot, task.source)))
-            result = process_video(task, report)
-            events.send((slot, result))
-            if result.status == INTERRUPTED:
-                break
-    except (StopRequested, BrokenPipeError):   # stopped, or the parent is gone
-        pass
+        except (StopRequested, BrokenPipeError):   # stopped, or the parent is gone
+            pass
 
 
 @contextmanager

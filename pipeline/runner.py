@@ -11,6 +11,7 @@ stopped run still leaves a readable MCAP, .rrd and CSV of everything processed.
 from __future__ import annotations
 
 import signal
+import sys
 import time
 from collections import defaultdict
 from contextlib import closing, contextmanager, suppress
@@ -93,22 +94,26 @@ class StopRequested(BaseException):
 
 
 class _StopSignals:
-    """Turns SIGTERM (and Ctrl-C) into ``StopRequested``, held back while a frame is being written.
+    """Turns SIGTERM (and Ctrl-C) into ``StopRequested``, held back while a frame is being written
+    and while the outputs are closed.
 
     A frame half-written (in the MCAP but not yet in the CSV or the frame count) would leave
-    outputs that disagree, so a signal arriving inside ``writing()`` waits for it to end.
+    outputs that disagree, so a signal arriving inside ``held()`` waits for it to end (a second
+    one does not: the user insists). Every stop is also remembered: one raised where Python
+    swallows it (inside a ``__del__``, which then prints "Exception ignored") still stops the
+    run at the end of the next frame, and is not printed.
     """
 
     def __init__(self) -> None:
-        self._writing = False
-        self._pending: str | None = None
+        self._held = False
+        self.requested: str | None = None
 
     def _handler(self, signum, _frame) -> None:
         name = signal.Signals(signum).name
-        if self._writing:
-            self._pending = name
-            return
-        raise StopRequested(name)
+        again = self.requested is not None
+        self.requested = name
+        if not self._held or again:
+            raise StopRequested(name)
 
     @contextmanager
     def installed(self) -> Iterator["_StopSignals"]:
@@ -122,21 +127,47 @@ class _StopSignals:
         if previous_int is signal.default_int_handler:
             signal.signal(signal.SIGINT, self._handler)
         try:
-            yield self
+            with swallowed_stops_unprinted():
+                yield self
         finally:
             signal.signal(signal.SIGTERM, previous_term)
             if previous_int is signal.default_int_handler:
                 signal.signal(signal.SIGINT, previous_int)
 
     @contextmanager
-    def writing(self) -> Iterator[None]:
-        self._writing = True
+    def held(self) -> Iterator[None]:
+        """Signals arriving inside wait (``requested`` says whether one came)."""
+        self._held = True
         try:
             yield
         finally:
-            self._writing = False
-        if self._pending is not None:
-            raise StopRequested(self._pending)
+            self._held = False
+
+    @contextmanager
+    def writing(self) -> Iterator[None]:
+        """One frame out to every sink, then the stop that came meanwhile (or was swallowed)."""
+        with self.held():
+            yield
+        if self.requested is not None:
+            raise StopRequested(self.requested)
+
+
+@contextmanager
+def swallowed_stops_unprinted() -> Iterator[None]:
+    """Keep Python from printing a stop it swallowed (raised by a signal handler inside a
+    ``__del__``): whoever installed the handler remembers the stop and acts on it. Any other
+    unraisable exception is printed as before."""
+    previous = sys.unraisablehook
+
+    def hook(unraisable) -> None:
+        if not isinstance(unraisable.exc_value, (StopRequested, KeyboardInterrupt)):
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
 
 
 def output_paths(prefix: Path, config: Config) -> RunOutputs:
@@ -347,34 +378,37 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
         summary.events += len(packet.events)
         summary.height_camera = packet.height_camera or summary.height_camera
 
-    try:
-        with _StopSignals().installed() as stop_signals, closing(packets):
-            for packet in packets:
+    with _StopSignals().installed() as stop_signals:
+        try:
+            with closing(packets):
+                for packet in packets:
+                    with stop_signals.writing():
+                        for ready in backfill.push(packet):
+                            write(ready)
+                    progress.update(1)
+                    progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
+                    if on_frame is not None:
+                        on_frame(summary.frames, total, time.perf_counter() - start)
                 with stop_signals.writing():
-                    for ready in backfill.push(packet):
+                    for ready in backfill.drain():
                         write(ready)
-                progress.update(1)
-                progress.set_postfix(tracks=sum(t.confirmed for t in packet.tracks), refresh=False)
-                if on_frame is not None:
-                    on_frame(summary.frames, total, time.perf_counter() - start)
-            with stop_signals.writing():
+        except (KeyboardInterrupt, StopRequested) as stop:
+            summary.interrupted = str(stop) if isinstance(stop, StopRequested) else "SIGINT"
+            # The frames held for backfilling were processed: they go out too (a second Ctrl-C
+            # while they are written leaves them out, not a traceback).
+            with suppress(KeyboardInterrupt, StopRequested), stop_signals.held():
                 for ready in backfill.drain():
                     write(ready)
-    except (KeyboardInterrupt, StopRequested) as stop:
-        summary.interrupted = str(stop) if isinstance(stop, StopRequested) else "SIGINT"
-        # The frames held for backfilling were processed: they go out too (a second Ctrl-C
-        # while they are written leaves them out, not a traceback).
-        with suppress(KeyboardInterrupt):
-            for ready in backfill.drain():
-                write(ready)
-    finally:
-        summary.wall_s = time.perf_counter() - start
-        if overlapped is not None:
-            summary.dropped_frames = overlapped.dropped
-            summary.reused_network_frames = overlapped.reused
-        progress.close()
-        close_all([stage for _, stage in chain.stages + sinks] + [source])
-        webhook = next((sink.webhook_stats for name, sink in sinks if name == "events"), None)
-        summary.webhook = webhook.summary() if webhook is not None else ""
+        finally:
+            # A stop arriving now waits for the outputs to close (a second one does not).
+            with stop_signals.held():
+                summary.wall_s = time.perf_counter() - start
+                if overlapped is not None:
+                    summary.dropped_frames = overlapped.dropped
+                    summary.reused_network_frames = overlapped.reused
+                progress.close()
+                close_all([stage for _, stage in chain.stages + sinks] + [source])
+                webhook = next((sink.webhook_stats for name, sink in sinks if name == "events"), None)
+                summary.webhook = webhook.summary() if webhook is not None else ""
     return summary
 
