@@ -74,3 +74,19 @@ def test_labelled_boxes_end_at_the_frame_edge(undistort):
     assert (boxes[:, 1] + boxes[:, 3] <= 1080).all() and (boxes[:, 2:] > 0).all()
     # Some feet are labelled below the frame's bottom: their boxes end at it.
     assert any(p.foot[1] > 1080 and p.box[1] + p.box[3] == 1080 for p in people)
+
+
+def test_each_track_is_scored_against_the_person_it_covers_most():
+    from bench.real_heights import track_height_errors
+
+    tall = LabelledPerson(1, np.array([400.0, 100.0, 40.0, 120.0]), np.array([420.0, 100.0]),
+                          np.array([420.0, 220.0]), True, 1.95)
+    labels = {f: [person(0, 100.0), tall] for f in range(10)}
+    # Track 7 covers person 0 for 6 frames and the tall person for 2; track 8 only the tall person;
+    # track 9 is a person track far from everyone, track 5 not a person track.
+    tracks = {f: [track("7", 101.0 if f < 6 else 401.0)] if f < 8 else [track("8", 399.0), track("5", 99.0)]
+              for f in range(10)}
+    tracks[0].append(track("9", 900.0))
+    errors, head_px, foot_px = track_height_errors(labels, tracks, {7: 1.70, 8: 1.90, 9: 1.80})
+    assert sorted(np.round(errors, 3)) == [0.05, 0.1]   # 7 against person 0 (1.80), 8 against 1.95
+    assert len(head_px) == len(foot_px) == 10           # the boxes of tracks 7 and 8
