@@ -108,7 +108,7 @@ def train_v2(args: argparse.Namespace, config) -> int:
             except OSError as exc:
                 if exc.errno != errno.EMFILE:
                     raise
-                # Six memory-mapped arrays a sequence, each holding a file open.
+                # One memory map a sequence (heightnet.contact_data), each holding its file open.
                 raise ConfigError(f"{len(chosen)} sequences open more files than this machine allows "
                                   f"(ulimit -n): name fewer (train_v2.sequences, fewer --data folders)") from None
         return caches

@@ -4,6 +4,9 @@ The cache (``<data>/.contact_cache/<sequence>/``) holds, per sequence, the frame
 rendered resolution: RGB, the exact ground-contact offsets (``stages/ground_contact.py``, from the
 generator's depth and camera), the height map, the semantic classes, the mover instances, the
 feature matches between consecutive frames (for the height-consistency loss) and the camera.
+The arrays lie in one file a sequence (``arrays.bin``, their layout in ``meta.json``), memory-mapped
+once: a map holds its file open, and a file an array ran a machine out of open files at ~3,300
+sequences (``ulimit -n`` 20,000).
 
 A sample is a pair (t-1, t) of one camera's frames with the same window, flip and colour
 jitter. The window is either the whole frame squashed to the input size (what the run-time
@@ -32,7 +35,11 @@ from heightnet.data import Augmentation, apply_colour, colour_jitter, match_feat
 from heightnet.detection_targets import detection_targets, ignored_cells, window_boxes
 from synth.dataset import PARKED_VEHICLE_ID
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
+"""1: one .npy file an array; 2: one file a sequence."""
+ARRAYS_FILE = "arrays.bin"
+ARRAY_ALIGN = 64
+"""Each array starts at a multiple of this many bytes of ``ARRAYS_FILE`` (aligned reads)."""
 # Classes scored apart in the evaluation: trucks and buses hide their contact points.
 CLASS_GROUPS = {"pedestrian": "person", "cyclist": "cyclist", "car": "car/van", "van": "car/van",
                 "truck": "truck/bus", "bus": "truck/bus"}
@@ -105,37 +112,56 @@ def synth_pinhole(camera: Any) -> PinholeCamera:
 
 def _write_sequence(seq: Any, folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
+    for stale in folder.glob("*.npy"):  # a version-1 cache of this sequence
+        stale.unlink()
     camera = synth_pinhole(seq.meta.camera)
     frames = [seq.frame(i) for i in range(len(seq))]
-    np.save(folder / "rgb.npy", np.stack([f.rgb for f in frames]))
-    np.save(folder / "offsets.npy",
-            np.stack([contact_offsets(camera, f.height_m, f.ground) for f in frames]).astype(np.float16))
-    np.save(folder / "height_m.npy", np.stack([f.height_m for f in frames]).astype(np.float16))
-    np.save(folder / "semantic.npy", np.stack([f.semantic for f in frames]).astype(np.uint8))
-    np.save(folder / "ground.npy", np.stack([f.ground for f in frames]).astype(np.uint8))
-    np.save(folder / "instance.npy", np.stack([f.instance for f in frames]).astype(np.uint16))
     offsets, points = [0, 0], []
     for t in range(1, len(frames)):
         m = match_features(frames[t - 1].rgb, frames[t].rgb, frames[t - 1].instance, frames[t].instance)
         points.append(m)
         offsets.append(offsets[-1] + len(m))
-    np.save(folder / "match_offsets.npy", np.asarray(offsets[:len(frames) + 1], np.int64))
-    np.save(folder / "match_points.npy",
-            np.concatenate(points) if points else np.zeros((0, 4), np.float32))
+    layout = write_arrays(folder / ARRAYS_FILE, {
+        "rgb": np.stack([f.rgb for f in frames]),
+        "offsets": np.stack([contact_offsets(camera, f.height_m, f.ground) for f in frames]).astype(np.float16),
+        "height_m": np.stack([f.height_m for f in frames]).astype(np.float16),
+        "semantic": np.stack([f.semantic for f in frames]).astype(np.uint8),
+        "ground": np.stack([f.ground for f in frames]).astype(np.uint8),
+        "instance": np.stack([f.instance for f in frames]).astype(np.uint16),
+        "match_offsets": np.asarray(offsets[:len(frames) + 1], np.int64),
+        "match_points": np.concatenate(points).astype(np.float32) if points else np.zeros((0, 4), np.float32),
+    })
     (folder / "meta.json").write_text(json.dumps({
-        "name": seq.name, "K": camera.K.tolist(), "R": camera.R.tolist(), "C": camera.C.tolist()}))
+        "name": seq.name, "K": camera.K.tolist(), "R": camera.R.tolist(), "C": camera.C.tolist(),
+        "arrays": layout}))
+
+
+def write_arrays(path: Path, arrays: dict[str, np.ndarray]) -> dict[str, dict]:
+    """Write ``arrays`` one after another into ``path``; return each one's dtype, shape and offset."""
+    layout = {}
+    with open(path, "wb") as f:
+        for name, array in arrays.items():
+            array = np.ascontiguousarray(array)
+            f.write(bytes(-f.tell() % ARRAY_ALIGN))
+            layout[name] = {"dtype": array.dtype.str, "shape": list(array.shape), "offset": f.tell()}
+            f.write(array.data)
+    return layout
+
+
+def map_arrays(path: Path, layout: dict[str, dict]) -> dict[str, np.ndarray]:
+    """Read-only views of the arrays ``write_arrays`` wrote, all on one memory map of ``path``."""
+    whole = np.memmap(path, dtype=np.uint8, mode="r")
+    return {name: np.ndarray(tuple(entry["shape"]), np.dtype(entry["dtype"]), buffer=whole, offset=entry["offset"])
+            for name, entry in layout.items()}
 
 
 def load_contact_sequence(folder: Path) -> ContactSequence:
     meta = json.loads((folder / "meta.json").read_text())
-
-    def load(name: str) -> np.ndarray:
-        return np.load(folder / f"{name}.npy", mmap_mode="r")
-
+    arrays = map_arrays(folder / ARRAYS_FILE, meta["arrays"])
     camera = PinholeCamera(np.array(meta["K"]), np.array(meta["R"]), np.array(meta["C"]))
-    return ContactSequence(meta["name"], camera, load("rgb"), load("offsets"), load("height_m"),
-                           load("semantic"), load("ground"), load("instance"), np.load(folder / "match_offsets.npy"),
-                           np.load(folder / "match_points.npy"))
+    return ContactSequence(meta["name"], camera, arrays["rgb"], arrays["offsets"], arrays["height_m"],
+                           arrays["semantic"], arrays["ground"], arrays["instance"],
+                           np.array(arrays["match_offsets"]), np.array(arrays["match_points"]))
 
 
 # ----------------------------------------------------------------------------- camera channels

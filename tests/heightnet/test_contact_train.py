@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import json
 import math
+import os
 from pathlib import Path
 
 import cv2
@@ -151,6 +152,38 @@ def test_cache_built_by_processes_equals_the_serial_cache(tmp_path):
         assert a.name == b.name
         assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.match_points, b.match_points)
         assert np.array_equal(a.offsets, b.offsets, equal_nan=True)
+
+
+def _open_files_named(name: str) -> int:
+    return sum(Path(os.readlink(fd)).name == name for fd in Path("/proc/self/fd").iterdir()
+               if fd.is_symlink() and os.path.exists(os.readlink(fd)))
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="counts open files in /proc")
+def test_a_cached_sequence_is_one_file_mapped_once_holding_every_array(tmp_path):
+    from heightnet.contact_data import ARRAYS_FILE
+
+    sequences = fake_sequences(count=3, frames=2, width=64, height=48)
+    before = _open_files_named(ARRAYS_FILE)
+    cached = build_contact_cache(sequences, tmp_path)
+    assert _open_files_named(ARRAYS_FILE) - before == 3          # one a sequence, not one an array
+    for sequence, cache in zip(sequences, cached):
+        assert sorted(p.name for p in (tmp_path / sequence.name).iterdir()) == [ARRAYS_FILE, "done.json", "meta.json"]
+        assert np.array_equal(cache.rgb[1], sequence.frame(1).rgb)
+        assert np.array_equal(cache.height_m[0], sequence.frame(0).height_m.astype(np.float16), equal_nan=True)
+        assert np.array_equal(cache.instance[1], sequence.frame(1).instance)
+        assert cache.matches(0).shape[1] == 4 and not cache.rgb.flags.writeable
+
+
+def test_a_cache_of_the_old_layout_is_rebuilt(tmp_path):
+    sequence = fake_sequences(count=1, frames=2, width=64, height=48)[0]
+    old = tmp_path / sequence.name
+    old.mkdir()
+    np.save(old / "rgb.npy", np.zeros((2, 48, 64, 3), np.uint8))
+    (old / "done.json").write_text(json.dumps({"version": 1, "frames": 2}))
+    cache = build_contact_cache([sequence], tmp_path)[0]
+    assert not list(old.glob("*.npy"))
+    assert np.array_equal(cache.rgb[0], sequence.frame(0).rgb)
 
 
 def test_resume_logs_each_step_once_after_a_stop_between_checkpoints(contact_sequences, tmp_path):
