@@ -129,7 +129,7 @@ def _write_sequence(seq: Any, folder: Path) -> None:
         "ground": np.stack([f.ground for f in frames]).astype(np.uint8),
         "instance": np.stack([f.instance for f in frames]).astype(np.uint16),
         "match_offsets": np.asarray(offsets[:len(frames) + 1], np.int64),
-        "match_points": np.concatenate(points).astype(np.float32) if points else np.zeros((0, 4), np.float32),
+        "match_points": np.concatenate(points) if points else np.zeros((0, 4), np.float32),
     })
     (folder / "meta.json").write_text(json.dumps({
         "name": seq.name, "K": camera.K.tolist(), "R": camera.R.tolist(), "C": camera.C.tolist(),
