@@ -15,7 +15,7 @@ in this clip):
 
 Per mode: confirmed person tracks, their mean / min / max final height, how many lie outside
 1.5-2.1 m, the median error of tracks matched to a labelled person and the share of them within
-10 cm, and the median pixel error of the tracks' head-top and foot points (top and bottom
+``WITHIN_M`` (10 cm), and the median pixel error of the tracks' head-top and foot points (top and bottom
 centre of the track box) against the labelled points, in the frame the run worked in
 (undistorted where it undistorted).
 
@@ -81,7 +81,7 @@ class ModeResult:
     outside: int = 0
     matched: int = 0
     median_error_m: float = float("nan")
-    within_10cm: float = float("nan")
+    within: float = float("nan")
     """The share of matched tracks within ``WITHIN_M`` of the truth: steadier than the median of
     some twenty tracks, whose errors fall in two groups (a few cm, and tens of cm)."""
     head_px: float = float("nan")
@@ -155,7 +155,7 @@ def score(mode: str, tracks_csv: Path, undistorted: bool) -> ModeResult:
     result.matched = len(errors)
     if errors:
         result.median_error_m = float(np.median(errors))
-        result.within_10cm = float(np.mean(np.array(errors) <= WITHIN_M))
+        result.within = float(np.mean(np.array(errors) <= WITHIN_M))
     if head_errors:
         result.head_px = float(np.median(head_errors))
     if foot_errors:
@@ -352,14 +352,15 @@ def draw_frame(tracks_csv: Path, frame_index: int, out: Path) -> None:
 
 def format_table(results: list[ModeResult]) -> str:
     lines = ["| mode | person tracks | mean (m) | min-max (m) | outside 1.5-2.1 | matched | median error (cm) | "
-             "within 10 cm | head px | foot px | covered | IDR | ID switches | mostly tracked | note |",
+             f"within {100 * WITHIN_M:g} cm | head px | foot px | covered | IDR | ID switches | mostly tracked | "
+             "note |",
              "|---" * 15 + "|"]
     for r in results:
         i = r.identity
         tracking = ("| - | - | - | - " if i is None else
                     f"| {i.covered:.3f} | {i.id_recall:.3f} | {i.id_switches} | {i.mostly_tracked}/{i.people} ")
         lines.append(f"| {r.mode} | {r.persons} | {r.mean_m:.3f} | {r.min_m:.2f}-{r.max_m:.2f} | "
-                     f"{r.outside} | {r.matched} | {100 * r.median_error_m:.1f} | {r.within_10cm:.2f} | "
+                     f"{r.outside} | {r.matched} | {100 * r.median_error_m:.1f} | {r.within:.2f} | "
                      f"{r.head_px:.1f} | {r.foot_px:.1f} {tracking}| {r.note} |")
     return "\n".join(lines)
 

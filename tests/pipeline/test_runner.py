@@ -10,13 +10,18 @@ from pipeline import runner
 from pipeline.runner import run_pipeline
 
 
+def sigterm_to_self() -> None:
+    """SIGTERM to this process, its Python handler run before this returns."""
+    os.kill(os.getpid(), signal.SIGTERM)
+    for _ in range(1000):  # the handler runs at one of these bytecodes, still in the caller
+        pass
+
+
 class SignalledOnCollection:
     """Sends this process SIGTERM from its ``__del__``, where a handler's exception is swallowed."""
 
     def __del__(self):
-        os.kill(os.getpid(), signal.SIGTERM)
-        for _ in range(1000):  # the handler runs at one of these bytecodes, still inside __del__
-            pass
+        sigterm_to_self()
 
 
 class OutsideHandlerRan(Exception):
@@ -62,9 +67,7 @@ def test_a_stop_arriving_while_the_outputs_close_waits_for_them(
     close_all = runner.close_all
 
     def signalled_then_closed(parts):
-        os.kill(os.getpid(), signal.SIGTERM)
-        for _ in range(1000):
-            pass
+        sigterm_to_self()
         close_all(parts)
 
     monkeypatch.setattr(runner, "close_all", signalled_then_closed)
