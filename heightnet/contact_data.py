@@ -3,7 +3,8 @@
 The cache (``<data>/.contact_cache/<sequence>/``) holds, per sequence, the frames at their
 rendered resolution: RGB, the exact ground-contact offsets (``stages/ground_contact.py``, from the
 generator's depth and camera), the height map, the semantic classes, the mover instances, the
-feature matches between consecutive frames (for the height-consistency loss) and the camera.
+movers' whole boxes (hidden parts included, as evaluation boxes them), the feature matches between
+consecutive frames (for the height-consistency loss) and the camera.
 The arrays lie in one file a sequence (``arrays.bin``, their layout in ``meta.json``), memory-mapped
 once: a map holds its file open, and a file an array ran a machine out of open files at ~3,300
 sequences (``ulimit -n`` 20,000).
@@ -35,8 +36,8 @@ from heightnet.data import Augmentation, apply_colour, colour_jitter, match_feat
 from heightnet.detection_targets import detection_targets, ignored_cells, window_boxes
 from synth.dataset import PARKED_VEHICLE_ID
 
-CACHE_VERSION = 2
-"""1: one .npy file an array; 2: one file a sequence."""
+CACHE_VERSION = 3
+"""1: one .npy file an array; 2: one file a sequence; 3: with each frame's whole-object boxes."""
 ARRAYS_FILE = "arrays.bin"
 ARRAY_ALIGN = 64
 """Each array starts at a multiple of this many bytes of ``ARRAYS_FILE`` (aligned reads)."""
@@ -59,9 +60,17 @@ class ContactSequence:
     instance: np.ndarray     # T x H x W uint16, 0 = no mover
     match_offsets: np.ndarray
     match_points: np.ndarray
+    boxes: np.ndarray        # M x 7 float32: frame, mover id, x, y, w, h, visible share (``object_boxes``)
 
     def __len__(self) -> int:
         return len(self.rgb)
+
+    def whole_boxes(self, t: int) -> dict[int, tuple[float, float, float, float, float]]:
+        """Frame ``t``'s movers by id: their whole box (x0, y0, x1, y1, pixels of the frame,
+        hidden parts included) and the share of it in view."""
+        rows = self.boxes[self.boxes[:, 0] == t]
+        return {int(r[1]): (float(r[2]), float(r[3]), float(r[2] + r[4]), float(r[3] + r[5]), float(r[6]))
+                for r in rows}
 
     def matches(self, t: int) -> np.ndarray:
         return self.match_points[self.match_offsets[t]:self.match_offsets[t + 1]]
@@ -130,10 +139,18 @@ def _write_sequence(seq: Any, folder: Path) -> None:
         "instance": np.stack([f.instance for f in frames]).astype(np.uint16),
         "match_offsets": np.asarray(offsets[:len(frames) + 1], np.int64),
         "match_points": np.concatenate(points) if points else np.zeros((0, 4), np.float32),
+        "boxes": object_boxes(seq),
     })
     (folder / "meta.json").write_text(json.dumps({
         "name": seq.name, "K": camera.K.tolist(), "R": camera.R.tolist(), "C": camera.C.tolist(),
         "arrays": layout}))
+
+
+def object_boxes(seq: Any) -> np.ndarray:
+    """M x 7 float32: every frame's movers as the generator boxed them (frame, id, x, y, w, h of
+    the whole object, hidden parts included, and its visible share)."""
+    rows = [(i, o.id, *o.box, o.visible_fraction) for i in range(len(seq)) for o in seq.objects(i)]
+    return np.asarray(rows, np.float32).reshape(-1, 7)
 
 
 def write_arrays(path: Path, arrays: dict[str, np.ndarray]) -> dict[str, dict]:
@@ -161,7 +178,8 @@ def load_contact_sequence(folder: Path) -> ContactSequence:
     camera = PinholeCamera(np.array(meta["K"]), np.array(meta["R"]), np.array(meta["C"]))
     return ContactSequence(meta["name"], camera, arrays["rgb"], arrays["offsets"], arrays["height_m"],
                            arrays["semantic"], arrays["ground"], arrays["instance"],
-                           np.array(arrays["match_offsets"]), np.array(arrays["match_points"]))
+                           np.array(arrays["match_offsets"]), np.array(arrays["match_points"]),
+                           np.array(arrays["boxes"]))
 
 
 # ----------------------------------------------------------------------------- camera channels
@@ -209,6 +227,7 @@ class ContactSampling:
     detection: bool = False            # centre heatmap and box targets (heightnet/detection_targets.py)
     appearance: float = 0.0            # share of pairs whose look is randomised (heightnet/appearance.py)
     still_pairs: float = 0.0           # share of pairs shown as one frame twice: no motion anywhere
+    whole_boxes: bool = False          # box targets span the whole object, hidden parts too (``window_boxes``)
 
 
 class ContactPairDataset:
@@ -281,7 +300,9 @@ class ContactPairDataset:
             win = (slice(y0, y0 + h), slice(x0, x0 + w))
             if self.sampling.detection:
                 semantic = np.asarray(seq.semantic[frame][win])
-                boxes = window_boxes(np.asarray(seq.instance[frame][win]), semantic, sx, sy, flip, W)
+                whole = seq.whole_boxes(frame) if self.sampling.whole_boxes else None
+                boxes = window_boxes(np.asarray(seq.instance[frame][win]), semantic, sx, sy, flip, W,
+                                     whole, (x0, y0))
                 parked = _nearest((semantic == PARKED_VEHICLE_ID).astype(np.uint8), W, H) > 0
                 ignore = ignored_cells(parked[:, ::-1] if flip else parked)
                 for key, value in detection_targets(boxes, W, H, ignore).items():

@@ -87,7 +87,9 @@ def predict(net: torch.nn.Module, rgb: np.ndarray, width: int, height: int,
 
 
 def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: int, height: int,
-             min_pixels: int = 20, frames: int = 2) -> Scores:
+             min_pixels: int = 20, frames: int = 2, whole_boxes: bool = False) -> Scores:
+    """Held-out scores of ``net`` (``whole_boxes``: detections are scored against boxes of the
+    whole objects, as ``train_v2.whole_boxes`` trains them)."""
     was_training = net.training
     net.eval()
     tops: dict[str, list[float]] = defaultdict(list)
@@ -117,7 +119,8 @@ def evaluate(net: torch.nn.Module, sequences: Sequence[ContactSequence], width: 
         for t, (offsets, _, found) in zip(used, outputs):
             if found is not None:
                 truths = window_boxes(np.asarray(seq.instance[t]), np.asarray(seq.semantic[t]),
-                                      width / src_w, height / src_h, False, width)
+                                      width / src_w, height / src_h, False, width,
+                                      seq.whole_boxes(t) if whole_boxes else None)
                 _match_detections(found, truths, found_true, detections_matched)
             truth, instance, semantic = frame_labels(seq, t, width, height)
             pred = np.clip(heights_from_offsets(true_camera, offsets), 0, MAX_HEIGHT_M)

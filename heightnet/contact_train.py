@@ -122,7 +122,8 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
 
     sampling = ContactSampling(crop_probability=config.crop_probability,
                                camera_channels=config.camera_channels, detection=config.detection,
-                               appearance=config.appearance, still_pairs=config.still_pairs)
+                               appearance=config.appearance, still_pairs=config.still_pairs,
+                               whole_boxes=config.whole_boxes)
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
                                  config.max_matches, config.seed)
     per_epoch = max(1, len(dataset) // config.batch_size)
@@ -179,7 +180,8 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                            "images_per_s": f"{tick_images / elapsed:.2f}", "waiting_share": f"{waited / elapsed:.2f}"})
                 sums, counted, tick, tick_images, waited = {}, 0, time.time(), 0, 0.0
             if held_out and (step % config.eval_every == 0 or last):
-                scores = evaluate(_on_cpu(ema), held_out, config.input_width, config.input_height)
+                scores = evaluate(_on_cpu(ema), held_out, config.input_width, config.input_height,
+                                  whole_boxes=config.whole_boxes)
                 curve.write({"step": step, "images": images,
                              **{k: f"{v:.2f}" for k, v in scores_row(scores).items()}})
                 tick, waited = time.time(), 0.0   # evaluation time is not training throughput

@@ -29,6 +29,9 @@ from synth.dataset import CLASS_NAMES, COARSE_CLASS
 
 # Boxes smaller than this (input pixels, height) are not asked for: a 3-pixel person is noise.
 MIN_BOX_PX = 4.0
+# A mover less in view than this is boxed by its visible pixels even with whole boxes: the head
+# is not asked to guess a whole walker from a hand (evaluation does not count such objects).
+WHOLE_BOX_MIN_VISIBLE = 0.3
 # Gaussian width as a share of the box (TTFNet's alpha) and its floor in heatmap cells.
 GAUSSIAN_ALPHA = 0.54
 MIN_SIGMA_CELLS = 0.5
@@ -51,9 +54,21 @@ class Box:
 
 
 def window_boxes(instance: np.ndarray, semantic: np.ndarray, scale_x: float, scale_y: float,
-                 flip: bool, width: int) -> list[Box]:
-    """Boxes of the movers in a native-resolution window, in input pixels after resize/flip."""
+                 flip: bool, width: int, whole: dict[int, tuple[float, ...]] | None = None,
+                 origin: tuple[int, int] = (0, 0)) -> list[Box]:
+    """Boxes of the movers in a native-resolution window, in input pixels after resize/flip.
+
+    A box spans the mover's pixels in view, or with ``whole`` (mover id -> x0, y0, x1, y1 in
+    frame pixels and visible share, ``ContactSequence.whole_boxes``; ``origin`` is the window's
+    top-left in the frame) the whole mover, hidden parts included, cut to the window, for those
+    at least ``WHOLE_BOX_MIN_VISIBLE`` in view.
+
+    Why whole boxes: evaluation (like MOT's) and the heights want the whole object, its feet
+    behind a car included; boxes of the parts in view teach the head to end a half-hidden
+    walker at the car's roof.
+    """
     boxes = []
+    window_h, window_w = instance.shape[:2]
     slices = ndimage.find_objects(instance.astype(np.int32))
     for index, found in enumerate(slices, start=1):
         if found is None:
@@ -66,13 +81,18 @@ def window_boxes(instance: np.ndarray, semantic: np.ndarray, scale_x: float, sca
         name = COARSE_CLASS.get(CLASS_NAMES[int(classes.argmax())])
         if name is None:
             continue
-        x0, x1 = xs.start * scale_x, xs.stop * scale_x
-        y0, y1 = ys.start * scale_y, ys.stop * scale_y
+        x0, x1, y0, y1 = xs.start, xs.stop, ys.start, ys.stop
+        box = whole.get(index) if whole is not None else None
+        if box is not None and box[4] >= WHOLE_BOX_MIN_VISIBLE:
+            x0, x1 = np.clip([box[0] - origin[0], box[2] - origin[0]], 0, window_w)
+            y0, y1 = np.clip([box[1] - origin[1], box[3] - origin[1]], 0, window_h)
+        x0, x1 = x0 * scale_x, x1 * scale_x
+        y0, y1 = y0 * scale_y, y1 * scale_y
         if y1 - y0 < MIN_BOX_PX:
             continue
         if flip:
             x0, x1 = width - x1, width - x0
-        boxes.append(Box(DETECTION_CLASSES.index(name), x0, y0, x1, y1))
+        boxes.append(Box(DETECTION_CLASSES.index(name), float(x0), float(y0), float(x1), float(y1)))
     return boxes
 
 

@@ -173,17 +173,25 @@ def test_a_cached_sequence_is_one_file_mapped_once_holding_every_array(tmp_path)
         assert np.array_equal(cache.height_m[0], sequence.frame(0).height_m.astype(np.float16), equal_nan=True)
         assert np.array_equal(cache.instance[1], sequence.frame(1).instance)
         assert cache.matches(0).shape[1] == 4 and not cache.rgb.flags.writeable
+        for t in range(len(sequence)):
+            whole = cache.whole_boxes(t)
+            assert sorted(whole) == sorted(o.id for o in sequence.objects(t))
+            for o in sequence.objects(t):
+                x, y, w, h = o.box
+                assert whole[o.id] == pytest.approx((x, y, x + w, y + h, o.visible_fraction), abs=1e-4)
 
 
-def test_a_cache_of_the_old_layout_is_rebuilt(tmp_path):
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_cache_of_an_older_layout_is_rebuilt(tmp_path, version):
     sequence = fake_sequences(count=1, frames=2, width=64, height=48)[0]
     old = tmp_path / sequence.name
     old.mkdir()
     np.save(old / "rgb.npy", np.zeros((2, 48, 64, 3), np.uint8))
-    (old / "done.json").write_text(json.dumps({"version": 1, "frames": 2}))
+    (old / "done.json").write_text(json.dumps({"version": version, "frames": 2}))
     cache = build_contact_cache([sequence], tmp_path)[0]
     assert not list(old.glob("*.npy"))
     assert np.array_equal(cache.rgb[0], sequence.frame(0).rgb)
+    assert len(cache.whole_boxes(1)) == len(sequence.objects(1))
 
 
 def test_resume_logs_each_step_once_after_a_stop_between_checkpoints(contact_sequences, tmp_path):
@@ -407,6 +415,31 @@ def test_detection_targets_mark_each_mover_at_its_box_centre(contact_sequences):
                 inside = sample["instance"][frame, 0, rows, int(max(x0, 0)):int(np.ceil(x1))]
                 assert (inside > 0).any()
     assert total >= len(dataset)
+
+
+def test_whole_boxes_span_the_hidden_parts_of_objects_in_view_cut_to_the_window():
+    from heightnet.detection_targets import window_boxes
+    from synth.dataset import CLASS_NAMES
+
+    instance = np.zeros((40, 60), np.uint16)
+    instance[10:20, 5:11] = 1       # a walker's upper half; his legs behind a car
+    instance[5:25, 30:36] = 2       # a walker a quarter in view: boxed by what is seen
+    instance[0:8, 50:56] = 3        # a walker whose feet are under the window's top
+    semantic = np.where(instance > 0, CLASS_NAMES.index("pedestrian"), 0).astype(np.uint8)
+    whole = {1: (5.0, 10.0, 11.0, 40.0, 0.5), 2: (30.0, 5.0, 36.0, 45.0, 0.25), 3: (50.0, -12.0, 56.0, 8.0, 0.4)}
+
+    def extents(boxes):
+        return [(b.x0, b.y0, b.x1, b.y1) for b in boxes]
+
+    assert extents(window_boxes(instance, semantic, 1.0, 1.0, False, 60)) == [
+        (5, 10, 11, 20), (30, 5, 36, 25), (50, 0, 56, 8)]
+    assert extents(window_boxes(instance, semantic, 1.0, 1.0, False, 60, whole)) == [
+        (5, 10, 11, 40), (30, 5, 36, 25), (50, 0, 56, 8)]
+    # The same frame seen through a window from (2, 4) to (62, 36) of the frame, scaled x2 and
+    # mirrored: the first walker's whole box is cut where the window ends (row 36 of the frame).
+    window = instance[4:36, 2:62]
+    boxes = window_boxes(window, semantic[4:36, 2:62], 2.0, 2.0, True, 120, whole, (2, 4))
+    assert extents(boxes)[0] == (120 - 18, 12, 120 - 6, 64) and extents(boxes)[1] == (120 - 68, 2, 120 - 56, 42)
 
 
 def test_heightpipe_export_writes_a_v2_model_and_says_so(contact_sequences, tmp_path, capsys):
