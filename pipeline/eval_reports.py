@@ -1,5 +1,5 @@
 """What ``heightpipe eval-tracks`` prints and draws: the report table, the misses and wrong-detection
-tables, the height picture."""
+(and wrong track box) tables, the height picture."""
 
 from __future__ import annotations
 
@@ -21,6 +21,13 @@ def format_misses(breakdown: dict[str, dict]) -> str:
 def format_wrong_detections(breakdown: dict[str, dict]) -> str:
     """``eval_metrics.wrong_detection_breakdown``: what lies under each group's wrong detections."""
     return _shares_table("wrong detections by what lies under them (share of the group's wrong detections)",
+                         WRONG_KINDS, breakdown, width=28, count="wrong")
+
+
+def format_wrong_tracks(breakdown: dict[str, dict]) -> str:
+    """``eval_metrics.wrong_detection_breakdown(..., tracks=True)``: what lies under the track boxes
+    the MOT metrics count as false positives."""
+    return _shares_table("wrong track boxes (MOT false positives) by what lies under them (share of the group's)",
                          WRONG_KINDS, breakdown, width=28, count="wrong")
 
 
@@ -68,6 +75,9 @@ def format_report(report: dict) -> str:
         f"MOTA {mot['MOTA']:.3f}  IDF1 {mot['IDF1']:.3f}  ID switches {mot['IDSW']}  "
         f"FP {mot['false_positives']}  misses {mot['misses']} / {mot['gt_dets']}  [{mot['engine']}]",
     ]
+    if "by_iou" in mot:
+        lines.append("  at IoU threshold " + "   ".join(
+            f"{alpha}: DetA {v['DetA']:.2f} AssA {v['AssA']:.2f}" for alpha, v in mot["by_iou"].items()))
 
     def row(label: str, summary: dict) -> str:
         return (f"    {label:<38} {_cm(summary['tracked_median_error_m'])}   "

@@ -44,8 +44,8 @@ from core.config import Config
 from core.errors import HeightpipeError
 from pipeline.eval_compare import check_comparable, compare_reports, format_comparison
 from pipeline.eval_metrics import evaluate
-from pipeline.eval_reports import (format_misses, format_report, format_wrong_detections, json_default,
-                                   plot_height_series)
+from pipeline.eval_reports import (format_misses, format_report, format_wrong_detections, format_wrong_tracks,
+                                   json_default, plot_height_series)
 from pipeline.eval_sequences import CAMERA_KNOWN, run_sequence
 
 
@@ -71,8 +71,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="objects matched in fewer frames are left out of the height errors")
     parser.add_argument("--misses", action="store_true",
                         help="also print why required objects were missed (not detected, merged, box off, "
-                             "detected but not tracked) and what lies under wrong detections, per class, size, "
-                             "time of day, weather")
+                             "detected but not tracked) and what lies under wrong detections and wrong track "
+                             "boxes, per class, size, time of day, weather")
     parser.add_argument("--json", metavar="FILE", help="write the full report as JSON")
     parser.add_argument("--against", metavar="BASE_JSON",
                         help="another run's --json report on the same data: heights compared over the objects "
@@ -126,6 +126,7 @@ def main(args: argparse.Namespace, config: Config) -> int:
     if args.misses:
         print(format_misses(report["misses"]))
         print(format_wrong_detections(report["wrong_detections"]))
+        print(format_wrong_tracks(report["wrong_tracks"]))
     if base is not None:
         report["against"] = compare_reports(report, base)
         print(format_comparison(report["against"], args.against))

@@ -10,7 +10,8 @@ import pytest
 from core.packets import NETWORK, Detection, Measurement
 from pipeline.eval_metrics import detection_scores, evaluate, size_group
 from pipeline.eval_reports import format_report, json_default
-from pipeline.eval_sequences import DetectionBox, FrameRecord, SequenceRun, TruthBox, detection_record, eval_class
+from pipeline.eval_sequences import (DetectionBox, FrameRecord, OutputBox, SequenceRun, TruthBox, detection_record,
+                                     eval_class)
 
 
 def _truth(object_id, cls, x, h=60.0, visibility=1.0):
@@ -222,3 +223,15 @@ def test_wrong_detections_are_counted_per_group_and_correct_ones_left_out():
     assert table["all"]["on nothing"] == 1 and table["all"]["holds several objects"] == 1
     assert sum(table["all"].values()) == 2                 # the matched walker is not wrong
     assert table["class vehicle"]["holds several objects"] == 1 and table["night"]["on nothing"] == 1
+
+
+def test_wrong_track_boxes_are_the_scored_tracks_that_match_nothing_required():
+    from pipeline.eval_metrics import wrong_detection_breakdown
+
+    on_walker = OutputBox(1, _det("person", 0.0).box, 1.7, 0.05, "person", "network", True)
+    on_nothing = OutputBox(2, (500.0, 300.0, 20.0, 60.0), 1.7, 0.05, "person", "network", True)
+    coasting = OutputBox(3, (700.0, 300.0, 20.0, 60.0), 1.7, 0.05, "person", "network", False)
+    frame = FrameRecord(WALKERS, [on_walker, on_nothing, coasting], [DetectionBox((900.0, 300.0, 20.0, 60.0), 1.7)])
+    table = wrong_detection_breakdown([SequenceRun("s", 5.0, "rain", "night", 10.0, [frame])], 0.3, 20.0, tracks=True)
+    # The detection is not looked at; the coasting track is not scored (not seen this frame).
+    assert table["all"]["on nothing"] == 1 and sum(table["all"].values()) == 1

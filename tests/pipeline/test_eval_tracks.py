@@ -33,6 +33,19 @@ def test_perfect_tracking_scores_one():
         assert mot["IDF1"] == pytest.approx(1.0) and mot["IDSW"] == 0
 
 
+def test_loose_boxes_keep_detection_at_a_low_iou_threshold_and_lose_it_at_a_high_one():
+    # Every box found, every box 4 px to the side of its 20 px wide truth: IoU 16 x 60 / (24 x 60) = 0.67.
+    frames = [FrameRecord([_truth(1, 10 + 2 * i)], [_out(5, 14 + 2 * i)], []) for i in range(10)]
+    report = evaluate([_run(frames)], use_trackeval=False)
+    mot = report["mot"]
+    shown = mot["by_iou"]
+    assert list(shown) == ["0.05", "0.25", "0.50", "0.75", "0.95"]
+    assert shown["0.05"]["DetA"] == pytest.approx(1.0) and shown["0.50"]["DetA"] == pytest.approx(1.0)
+    assert shown["0.75"]["DetA"] == 0.0 and shown["0.95"]["DetA"] == 0.0
+    assert mot["DetA"] == pytest.approx(sum(alpha <= 2 / 3 for alpha in np.arange(0.05, 0.99, 0.05)) / 19)
+    assert "at IoU threshold 0.05: DetA 1.00 AssA 1.00" in format_report(report)
+
+
 def test_an_id_switch_is_counted_and_costs_idf1():
     frames = [FrameRecord([_truth(1, 10 + 3 * i)], [_out(7 if i < 10 else 8, 10 + 3 * i)], [])
               for i in range(20)]
