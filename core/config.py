@@ -569,7 +569,9 @@ class TrainV2Config:
     camera_weight: float = 1.0
     """Camera heads' Huber fit + variance NLL (pitch, roll, focal length; whole frames only)."""
     detection_weight: float = 3.0
-    """Centre focal loss + box L1 of the detection head."""
+    """Centre focal loss + box L1 (+ GIoU, ``box_giou_weight``) of the detection head."""
+    box_giou_weight: float = 1.0
+    """Generalised-IoU loss on the head's boxes beside the L1 (inside ``detection_weight``); 0 = off."""
 
 
 @dataclass

@@ -50,6 +50,7 @@ class ContactLossWeights:
     ground: float = 0.2
     camera: float = 0.1
     detection: float = 1.0
+    box_giou: float = 0.0
 
 
 # Instance ids are stored as uint16 (contact_data's cache): below this bound.
@@ -113,7 +114,11 @@ def contact_loss(offsets: torch.Tensor, ground_logit: torch.Tensor, camera: torc
         ignore = batch["det_ignore"].flatten(0, 1) if "det_ignore" in batch else None
         losses["centre"] = centre_focal(centre_logit, batch["det_centre"].flatten(0, 1), ignore)
         losses["box"] = box_l1(box, batch["det_box"].flatten(0, 1), batch["det_box_mask"].flatten(0, 1))
-        losses["total"] = losses["total"] + weights.detection * (losses["centre"] + losses["box"])
+        detection_total = losses["centre"] + losses["box"]
+        if weights.box_giou > 0:
+            losses["giou"] = box_giou(box, batch["det_box"].flatten(0, 1), batch["det_box_mask"].flatten(0, 1))
+            detection_total = detection_total + weights.box_giou * losses["giou"]
+        losses["total"] = losses["total"] + weights.detection * detection_total
     losses["decoded"] = height.detach()
     losses["movers"] = movers
     return losses
@@ -205,3 +210,28 @@ def box_l1(box: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch
     raw = torch.cat([box[:, :2] / DETECTION_STRIDE, torch.log(box[:, 2:] / BOX_UNIT_PX)], 1)
     goal = torch.cat([target[:, :2] / DETECTION_STRIDE, target[:, 2:]], 1)
     return ((raw - goal).abs() * mask).sum() / (4 * mask.sum())
+
+
+def box_giou(box: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """1 - generalised IoU (Rezatofighi et al. 2019) of each cell's box with its target, weighted
+    by ``mask`` as ``box_l1``.
+
+    Why beside the L1: the L1 weighs each edge's error alone, the evaluation weighs the overlap
+    (HOTA averages IoU thresholds up to 0.95; the head's boxes were 1-3 px off at each edge, a
+    median IoU of 0.71). TTFNet (Liu et al. 2020) trains its boxes on GIoU alone. Both boxes are
+    placed relative to their cell's centre, which cancels.
+    """
+    if not (mask > 0).any():
+        return box.sum() * 0.0
+    half = box[:, 2:] / 2
+    pred = torch.cat([box[:, :2] - half, box[:, :2] + half], 1)
+    size = torch.exp(target[:, 2:]) * BOX_UNIT_PX
+    goal = torch.cat([target[:, :2] - size / 2, target[:, :2] + size / 2], 1)
+    low, high = torch.maximum(pred[:, :2], goal[:, :2]), torch.minimum(pred[:, 2:], goal[:, 2:])
+    inter = (high - low).clamp(min=0).prod(1, keepdim=True)
+    area_pred = (pred[:, 2:] - pred[:, :2]).clamp(min=0).prod(1, keepdim=True)
+    area_goal = (goal[:, 2:] - goal[:, :2]).prod(1, keepdim=True)
+    union = (area_pred + area_goal - inter).clamp(min=1e-6)
+    hull = (torch.maximum(pred[:, 2:], goal[:, 2:]) - torch.minimum(pred[:, :2], goal[:, :2])).prod(1, keepdim=True)
+    giou = inter / union - (hull - union) / hull.clamp(min=1e-6)
+    return ((1 - giou) * mask).sum() / mask.sum()

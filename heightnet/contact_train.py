@@ -60,7 +60,7 @@ def architecture_of(config: TrainV2Config) -> ContactArchitecture:
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
     return ContactLossWeights(config.offset_all_weight, config.height_weight, config.si_weight,
                               config.consistency_weight, config.ground_weight, config.camera_weight,
-                              config.detection_weight)
+                              config.detection_weight, config.box_giou_weight)
 
 
 def learning_rate(step: int, config: TrainV2Config, warmup_from: int = 0) -> float:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
-from heightnet.contact_losses import box_l1, camera_nll, centre_focal, ground_loss, object_weights
+from heightnet.contact_losses import box_giou, box_l1, camera_nll, centre_focal, ground_loss, object_weights
+from heightnet.detection_targets import BOX_UNIT_PX
 
 
 def test_camera_mean_keeps_its_gradient_when_the_head_claims_a_large_variance():
@@ -61,6 +64,28 @@ def test_focal_loss_is_lower_at_the_right_peak_and_box_l1_only_counts_weighted_c
     goal = torch.zeros(1, 4, 5, 5)         # centre offset 0, log(size / 16 px) = 0
     # Only the masked cell counts: |4| + |4| + 0 + 0 over four numbers.
     assert abs(float(box_l1(box, goal, mask)) - 2.0) < 1e-6
+
+
+def test_giou_loss_is_one_minus_the_overlap_and_pulls_apart_boxes_together():
+    mask = torch.zeros(1, 1, 3, 3)
+    mask[0, 0, 1, 1] = 1.0
+    goal = torch.zeros(1, 4, 3, 3)
+    goal[:, 0], goal[:, 1] = 2.0, -1.0                       # centre 2 px right of, 1 px above the cell's
+    goal[:, 2], goal[:, 3] = math.log(10 / BOX_UNIT_PX), math.log(30 / BOX_UNIT_PX)   # 10 x 30 px
+    exact = torch.zeros(1, 4, 3, 3)
+    exact[:, 0], exact[:, 1], exact[:, 2], exact[:, 3] = 2.0, -1.0, 10.0, 30.0
+    assert float(box_giou(exact, goal, mask)) < 1e-6
+    wide = exact.clone()
+    wide[:, 2] = 12.0                                        # the goal inside, IoU 10/12, hull = union
+    assert abs(float(box_giou(wide, goal, mask)) - (1 - 10 / 12)) < 1e-5
+    apart = exact.clone()
+    apart[:, 0] = 22.0                                       # 20 px to the side: no overlap, a gap of 10
+    apart.requires_grad_(True)
+    loss = box_giou(apart, goal, mask)
+    assert float(loss) > 1.0                                 # beyond what any overlap costs
+    loss.backward()
+    assert float(apart.grad[0, 0, 1, 1]) > 0                 # moving it back towards the goal helps
+    assert float(apart.grad[0, 0, 0, 0]) == 0.0              # unweighted cells learn nothing
 
 
 def test_each_object_weighs_the_root_of_its_own_image_s_masked_pixels():
