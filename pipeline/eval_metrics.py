@@ -583,8 +583,8 @@ def wrong_detection_breakdown(runs: list[SequenceRun], min_visibility: float,
     """Every detection the detection table counts wrong, by what lies under it
     (``wrong_detection_kind``), per group (all, the class it claims, box height, time of day,
     weather, camera height); with ``tracks``, every track box the MOT metrics score (a track seen
-    that frame) that matches no required box at IoU 0.5 instead: the false positives of CLEAR and
-    Identity, so of IDF1.
+    that frame) that matches no required box at IoU 0.5 instead: CLEAR's false positives (its
+    matching also keeps last frame's pairs, so its count may differ by a few), which cost IDF1.
 
     Low precision has different cures: boxes on groups or on parts of objects are the detector's,
     boxes on nothing its false alarms, and boxes on don't-care objects mostly the evaluation's.
