@@ -104,7 +104,7 @@ def mot_data(run: SequenceRun, min_visibility: float, min_box_px: float = 0.0) -
     for frame in run.frames:
         cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
         ignored = [t for t in frame.truth if not cared_for(t, min_visibility, min_box_px)]
-        outputs = [o for o in frame.tracks if o.updated]
+        outputs = frame.seen_tracks
         drop = on_dont_care(cared, ignored, [o.box for o in outputs], frame.region)
         outputs = [o for i, o in enumerate(outputs) if i not in drop]
         gt_ids.append([t.object_id for t in cared])
@@ -323,7 +323,7 @@ def object_heights(run: SequenceRun, min_visibility: float, min_box_px: float = 
         cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
         if not cared:
             continue
-        outputs = [o for o in frame.tracks if o.updated]
+        outputs = frame.seen_tracks
         for r, c in matched_at_iou([t.box for t in cared], [o.box for o in outputs]):
             key = (cared[r].object_id, outputs[c].track_id)
             track_votes[key[0]][key[1]] += 1
@@ -392,7 +392,7 @@ def occlusion_events(run: SequenceRun, min_visibility: float, min_hidden_frames:
     """
     history: dict[int, list[tuple[int, float, bool, int | None, float | None]]] = defaultdict(list)
     for index, frame in enumerate(run.frames):
-        outputs = [o for o in frame.tracks if o.updated]
+        outputs = frame.seen_tracks
         matched = {frame.truth[r].object_id: outputs[c]
                    for r, c in matched_at_iou([t.box for t in frame.truth], [o.box for o in outputs])}
         for t in frame.truth:
@@ -511,7 +511,7 @@ def miss_breakdown(runs: list[SequenceRun], min_visibility: float, min_box_px: f
             cared = [t for t in frame.truth if cared_for(t, min_visibility, min_box_px)]
             if not cared:
                 continue
-            outputs = [o for o in frame.tracks if o.updated]
+            outputs = frame.seen_tracks
             tracked = {r for r, _ in matched_at_iou([t.box for t in cared], [o.box for o in outputs])}
             detections = [d.box for d in frame.detections]
             visible = [t.box for t in frame.truth if t.visibility > CONSTANTS.min_seen_share]
@@ -592,7 +592,7 @@ def wrong_detection_breakdown(runs: list[SequenceRun], min_visibility: float,
     counts: dict[str, Counter] = defaultdict(Counter)
     for run in runs:
         for frame in run.frames:
-            boxes = [o for o in frame.tracks if o.updated] if tracks else frame.detections
+            boxes = frame.seen_tracks if tracks else frame.detections
             _, detections, pairs = scored_detections(frame.truth, boxes, min_visibility, min_box_px, frame.region)
             correct = {c for _, c in pairs}
             for j, detection in enumerate(detections):

@@ -75,9 +75,8 @@ def format_report(report: dict) -> str:
         f"MOTA {mot['MOTA']:.3f}  IDF1 {mot['IDF1']:.3f}  ID switches {mot['IDSW']}  "
         f"FP {mot['false_positives']}  misses {mot['misses']} / {mot['gt_dets']}  [{mot['engine']}]",
     ]
-    if "by_iou" in mot:
-        lines.append("  at IoU threshold " + "   ".join(
-            f"{alpha}: DetA {v['DetA']:.2f} AssA {v['AssA']:.2f}" for alpha, v in mot["by_iou"].items()))
+    lines.append("  at IoU threshold " + "   ".join(
+        f"{alpha}: DetA {v['DetA']:.2f} AssA {v['AssA']:.2f}" for alpha, v in mot["by_iou"].items()))
 
     def row(label: str, summary: dict) -> str:
         return (f"    {label:<38} {_cm(summary['tracked_median_error_m'])}   "
@@ -153,7 +152,7 @@ def plot_height_series(run: SequenceRun, path: Path, min_visibility: float) -> N
         for out in frame.tracks:
             if np.isfinite(out.height_m):
                 series[out.track_id].append((index, out.height_m, out.height_std_m))
-        updated = [o for o in frame.tracks if o.updated]
+        updated = frame.seen_tracks
         if updated and frame.detections:
             # The detection a track was updated with is the one its box now overlaps most.
             iou = iou_matrix([o.box for o in updated], [d.box for d in frame.detections])

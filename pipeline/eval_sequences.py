@@ -80,6 +80,12 @@ class FrameRecord:
     """Don't-care pixels (the parked vehicles the generator gives no box), ``np.packbits`` along
     rows; None where there are none (``dont_care_region``)."""
 
+    @property
+    def seen_tracks(self) -> list[OutputBox]:
+        """The tracks updated with a detection this frame: the boxes the MOT metrics score (a
+        predicted box is the tracker's guess, not a report)."""
+        return [o for o in self.tracks if o.updated]
+
 
 @dataclass
 class SequenceRun:
