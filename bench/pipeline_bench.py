@@ -1,6 +1,6 @@
 """End-to-end speed of `heightpipe run` against OpenCV's decode-only speed of the same clip.
 
-    python -m bench.pipeline_bench [CLIP] [--frames N] [--model PATH]
+    python -m bench.pipeline_bench [CLIP] [--frames N] [--model PATH] [--set SECTION.KEY=VALUE ...]
 
 Runs the whole pipeline in-process (capture, every stage, rerun + MCAP + CSV sinks all on,
 writing to a temporary folder) over a 640x360 clip and prints one table: decode-only
@@ -73,28 +73,38 @@ def decode_fps(clip: Path, frames: int) -> float:
     return count / (time.perf_counter() - start)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     from core.config import load_config
+    from core.errors import HeightpipeError
     from pipeline.runner import run_pipeline
     from stages.heightnet_model import cores
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("clip", nargs="?", type=Path)
     parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--model", default="", help="ONNX model (default: the shipped one)")
-    args = parser.parse_args()
+    parser.add_argument("--model", default="", help="ONNX model (default: config.toml's height.model)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="config override (repeatable), e.g. camera.height_m=6.4 for a v2 model")
+    args = parser.parse_args(argv)
     clip = args.clip or default_clip()
 
-    config = load_config(None, [])
+    try:
+        config = load_config(None, args.overrides)
+    except HeightpipeError as exc:
+        raise SystemExit(f"pipeline_bench: {exc}") from None
     config.capture.max_frames = args.frames
     config.output.progress = False
     config.output.rerun = "save"
     config.output.mcap = config.output.csv = True
-    config.height.model = args.model
+    if args.model:
+        config.height.model = args.model
     decode = decode_fps(clip, args.frames)
     cpu = CpuClock()
     with tempfile.TemporaryDirectory() as tmp:
-        summary = run_pipeline(str(clip), config, Path(tmp) / "bench", on_frame=cpu.on_frame)
+        try:
+            summary = run_pipeline(str(clip), config, Path(tmp) / "bench", on_frame=cpu.on_frame)
+        except HeightpipeError as exc:
+            raise SystemExit(f"pipeline_bench: {exc}") from None
     ratio = summary.fps / decode
     cpu_ms = cpu.ms_per_frame()
 

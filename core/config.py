@@ -520,6 +520,11 @@ class TrainV2Config:
     """The detection head also reads each cell's change since the last frame (a motion path that
     starts at zero; the ONNX file then takes the previous frame as a second input). Grown at step
     86,250 (690,000 images) of the committed run."""
+    detection_fine: bool = True
+    """The detection head's centre heatmaps and boxes at 1/2 of the input instead of 1/4: a fine
+    path upsamples the head and corrects it from the decoder's 1/2 features (starts as the 1/4
+    outputs upsampled; heightnet/contact_model.py ``DetectionHead``). Grown at step 119,752 of the
+    committed run."""
     head_only: bool = True
     """Train the detection head alone: the rest of the network keeps its averaged weights,
     BatchNorm included, so heights stay as they are and a step costs about half (no backward pass

@@ -33,6 +33,7 @@ import numpy as np
 from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, world_rays
 from heightnet.appearance import apply_appearance, draw_appearance, pair_texture
 from heightnet.data import Augmentation, apply_colour, colour_jitter, match_features, window_matches
+from heightnet.contact_model import DETECTION_STRIDE
 from heightnet.detection_targets import detection_targets, ignored_cells, window_boxes
 from synth.dataset import PARKED_VEHICLE_ID
 
@@ -225,6 +226,7 @@ class ContactSampling:
     colour: bool = True
     camera_channels: bool = False
     detection: bool = False            # centre heatmap and box targets (heightnet/detection_targets.py)
+    detection_stride: int = DETECTION_STRIDE  # input pixels per cell of those targets (the head's outputs)
     appearance: float = 0.0            # share of pairs whose look is randomised (heightnet/appearance.py)
     still_pairs: float = 0.0           # share of pairs shown as one frame twice: no motion anywhere
     whole_boxes: bool = False          # box targets span the whole object, hidden parts too (``window_boxes``)
@@ -304,8 +306,9 @@ class ContactPairDataset:
                 boxes = window_boxes(np.asarray(seq.instance[frame][win]), semantic, sx, sy, flip, W,
                                      whole, (x0, y0))
                 parked = _nearest((semantic == PARKED_VEHICLE_ID).astype(np.uint8), W, H) > 0
-                ignore = ignored_cells(parked[:, ::-1] if flip else parked)
-                for key, value in detection_targets(boxes, W, H, ignore).items():
+                stride = self.sampling.detection_stride
+                ignore = ignored_cells(parked[:, ::-1] if flip else parked, stride)
+                for key, value in detection_targets(boxes, W, H, ignore, stride).items():
                     detection[key].append(value)
             rgb = cv2.resize(np.asarray(seq.rgb[frame][win]), (W, H), interpolation=cv2.INTER_AREA)
             off = _nearest(np.asarray(seq.offsets[frame][win], np.float32), W, H) * np.float32([sx, sy])

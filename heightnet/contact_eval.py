@@ -32,7 +32,7 @@ from stages.camera_heads import camera_from_heads
 from stages.ground_contact import PinholeCamera, heights_from_offsets
 from stages.centre_detections import CentreDetections, box_iou, centre_detections
 from heightnet.contact_data import CLASS_GROUPS, ContactSequence, camera_channels, camera_targets
-from heightnet.contact_model import DETECTION_CLASSES, DETECTION_STRIDE
+from heightnet.contact_model import DETECTION_CLASSES
 from heightnet.detection_targets import window_boxes
 from heightnet.normalisation import normalise
 from synth.dataset import CLASS_NAMES
@@ -82,7 +82,7 @@ def predict(net: torch.nn.Module, rgb: np.ndarray, width: int, height: int,
     found = None
     if detection:
         centre, box = (t[0].numpy() for t in detection)
-        found = centre_detections(centre, box, DETECTION_STRIDE, DETECTION_SCORE)
+        found = centre_detections(centre, box, arch.detection_stride, DETECTION_SCORE)
     return offsets[0].permute(1, 2, 0).numpy(), cam[0].numpy(), found
 
 

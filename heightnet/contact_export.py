@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from heightnet.contact_model import CAMERA_OUTPUTS, DETECTION_CLASSES, DETECTION_STRIDE, ContactNet
+from heightnet.contact_model import CAMERA_OUTPUTS, DETECTION_CLASSES, ContactNet
 from heightnet.contact_train import load_network
 from heightnet.export import input_metadata
 from stages.heightnet_model import CONTACT_UNITS, PREVIOUS_INPUT
@@ -46,7 +46,7 @@ def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int,
         "ground_logit": "ground-plane logit",
         "camera": [*CAMERA_OUTPUTS, *(f"log_var_{name}" for name in CAMERA_OUTPUTS)]}
     if net.arch.detection:
-        outputs["centre_logit"] = {"classes": list(DETECTION_CLASSES), "stride": DETECTION_STRIDE}
+        outputs["centre_logit"] = {"classes": list(DETECTION_CLASSES), "stride": net.arch.detection_stride}
         outputs["box"] = "centre dx, dy from the cell centre, box width, height; input pixels"
     return {
         "heightpipe.format_version": "2",

@@ -14,7 +14,8 @@ Outputs for an input of W x H (both multiples of 32):
   heatmaps) and ``box`` B x 4 x H/4 x W/4 (the centre's offset from its cell centre and the box
   width and height, all in input pixels): a CenterNet-style head (Zhou et al. 2019) on the same
   features, so objects cost no second network; with ``detection_motion`` the head also reads
-  how much each of its cells changed since the frame before (a second input, ``previous``).
+  how much each of its cells changed since the frame before (a second input, ``previous``);
+  with ``detection_fine`` both are at H/2 x W/2.
 
 The offset of a pixel on a person's head is the person's height in pixels, so every pixel must
 see down to its object's foot. Four stride-2 levels of two 3x3 convolutions see about 90 input
@@ -77,6 +78,8 @@ OFFSET_UNIT_PX = 32.0
 DEPTHWISE_EXPAND = 3.35
 CAMERA_OUTPUTS = ("pitch_rad", "roll_rad", "log_focal_y")
 DETECTION_CLASSES = ("person", "cyclist", "vehicle")
+# Input pixels per cell of the detection head's trunk (its motion path too, and the unit of its
+# box offsets); the outputs are at half that with the fine path (``ContactArchitecture.detection_fine``).
 DETECTION_STRIDE = 4
 # Box sizes are predicted as log(size / BOX_UNIT_PX): far people of 8 px and buses of 300 px
 # are then equally easy targets.
@@ -85,6 +88,9 @@ BOX_UNIT_PX = 16.0
 CENTRE_PRIOR = 0.1
 # Hidden channels of the detection head's residual blocks, in multiples of its width.
 DETECTION_BLOCK_EXPAND = 2
+# Hidden channels of the fine path (``DetectionHead``, ``fine_width``), which brings the head
+# from 1/4 to 1/2 resolution; kept small because it runs on four times the cells.
+FINE_HIDDEN = 16
 # The detection head's motion path (``DetectionHead``, ``motion_channels``): its input channels
 # (each cell's mean and largest change) and hidden width.
 MOTION_CHANNELS = 2
@@ -108,12 +114,19 @@ class ContactArchitecture:
     detection_context: bool = False            # the detection head also reads the 1/16 context
     detection_blocks: int = 0                  # residual blocks in the detection head
     detection_motion: bool = False             # the detection head also reads the change from the last frame
+    detection_fine: bool = False               # the detection head's outputs at 1/2, from the 1/2 decoder features
+
+    @property
+    def detection_stride(self) -> int:
+        """Input pixels per cell of the centre heatmaps and boxes."""
+        return DETECTION_STRIDE // 2 if self.detection_fine else DETECTION_STRIDE
 
     def to_dict(self) -> dict:
         return {"trunk": self.trunk, "widths": list(self.widths), "camera_channels": self.camera_channels,
                 "context": list(self.context), "detection": self.detection, "refine": self.refine,
                 "gate": self.gate, "position": self.position, "detection_context": self.detection_context,
-                "detection_blocks": self.detection_blocks, "detection_motion": self.detection_motion}
+                "detection_blocks": self.detection_blocks, "detection_motion": self.detection_motion,
+                "detection_fine": self.detection_fine}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ContactArchitecture":
@@ -121,12 +134,13 @@ class ContactArchitecture:
                    tuple(d.get("context", ())), bool(d.get("detection", False)), int(d.get("refine", 0)),
                    bool(d.get("gate", False)), bool(d.get("position", False)),
                    bool(d.get("detection_context", False)), int(d.get("detection_blocks", 0)),
-                   bool(d.get("detection_motion", False)))
+                   bool(d.get("detection_motion", False)), bool(d.get("detection_fine", False)))
 
     def grows_from(self, old: "ContactArchitecture") -> bool:
         """True if this network is ``old`` plus new parts only (context blocks, a detection
         head, a refinement, the gate, the position channels, the head's context path, residual
-        blocks and motion path) — parts that start as no-ops, so ``old``'s weights carry over."""
+        blocks, motion path and fine path) — parts that start as no-ops, so ``old``'s weights carry
+        over (the fine path starts as the 1/4 outputs upsampled)."""
         same_core = (self.trunk, self.widths, self.camera_channels) == (old.trunk, old.widths, old.camera_channels)
         return (same_core and self.context[:len(old.context)] == old.context
                 and (self.detection or not old.detection) and old.refine in (0, self.refine)
@@ -136,6 +150,8 @@ class ContactArchitecture:
                 and (self.detection or not self.detection_blocks)
                 and (self.detection_motion or not old.detection_motion)
                 and (self.detection or not self.detection_motion)
+                and (self.detection_fine or not old.detection_fine)
+                and (self.detection or not self.detection_fine)
                 and self.detection_blocks >= old.detection_blocks and self != old)
 
 
@@ -224,9 +240,20 @@ class DetectionHead(nn.Module):
     With ``motion``, a third path reads how much each cell changed since the last frame
     (``motion_channels``): what moves is an object wherever the picture looks unlike the
     generator's, and the rule that let motion confirm weak boxes (``objects.score_motion``) is a
-    hand-set threshold the head can learn instead. It too starts at zero."""
+    hand-set threshold the head can learn instead. It too starts at zero.
 
-    def __init__(self, width: int, context_width: int = 0, blocks: int = 0, motion: bool = False):
+    With ``fine_width``, the trunk's features are upsampled to 1/2 and corrected there from the
+    decoder's 1/2 features (``fine_width`` channels) before the centre and box convolutions: at
+    1/4 of a 320x240 input a cell is 4 px, as wide as a far walker, and the boxes were 1-3 px off
+    at each edge however they were trained (GIoU did not tighten them, docs/results.md
+    2026-12-06), while half of the objects lost inside another's box had their centres within
+    8 px of it. The correction's last convolution starts at zero and the outputs are 1x1
+    convolutions, which commute with the bilinear upsampling: the head starts as its 1/4 outputs
+    upsampled, the box offsets included (an offset to the box centre is linear across the cells,
+    so it interpolates exactly)."""
+
+    def __init__(self, width: int, context_width: int = 0, blocks: int = 0, motion: bool = False,
+                 fine_width: int = 0):
         super().__init__()
         self.context = None
         if context_width:
@@ -243,6 +270,12 @@ class DetectionHead(nn.Module):
             nn.init.zeros_(self.motion[4].bias)
         self.blocks = nn.ModuleList(_zero_residual(width, DETECTION_BLOCK_EXPAND * width) for _ in range(blocks))
         self.trunk = nn.Sequential(nn.Conv2d(width, width, 3, padding=1), nn.ReLU(inplace=True))
+        self.fine = None
+        if fine_width:
+            self.fine = nn.Sequential(nn.Conv2d(width + fine_width, FINE_HIDDEN, 3, padding=1), nn.ReLU(inplace=True),
+                                      nn.Conv2d(FINE_HIDDEN, width, 1))
+            nn.init.zeros_(self.fine[2].weight)
+            nn.init.zeros_(self.fine[2].bias)
         self.centre = nn.Conv2d(width, len(DETECTION_CLASSES), 1)
         self.box = nn.Conv2d(width, 4, 1)
         nn.init.constant_(self.centre.bias, math.log(CENTRE_PRIOR / (1 - CENTRE_PRIOR)))
@@ -250,8 +283,10 @@ class DetectionHead(nn.Module):
         nn.init.zeros_(self.box.bias)
 
     def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
-                motion: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Centre logits, and boxes (dx, dy, w, h) in input pixels."""
+                motion: torch.Tensor | None = None, half: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Centre logits, and boxes (dx, dy, w, h) in input pixels; ``half``: the decoder's 1/2
+        features (the fine path)."""
         if self.context is not None:
             x = x + F.interpolate(self.context(context), size=x.shape[-2:], mode="bilinear", align_corners=False)
         if self.motion is not None:
@@ -259,6 +294,9 @@ class DetectionHead(nn.Module):
         for block in self.blocks:
             x = x + block(x)
         y = self.trunk(x)
+        if self.fine is not None:
+            y = F.interpolate(y, size=half.shape[-2:], mode="bilinear", align_corners=False)
+            y = y + self.fine(torch.cat([y, half], 1))
         raw = self.box(y)
         box = torch.cat([raw[:, :2] * DETECTION_STRIDE,
                          BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
@@ -312,8 +350,8 @@ def level(trunk: str, cin: int, cout: int, stride: int) -> nn.Sequential:
 
 class ContactNet(nn.Module):
     """Encoder to 1/16 (plus context), decoder with skips back to 1/2, heads at 1/2 (refined at
-    full resolution), detection at 1/4, camera from the bottleneck. Returns (offsets, ground,
-    camera[, centre, box])."""
+    full resolution), detection at 1/4 (or 1/2, ``detection_fine``), camera from the bottleneck.
+    Returns (offsets, ground, camera[, centre, box])."""
 
     def __init__(self, arch: ContactArchitecture = ContactArchitecture()):
         super().__init__()
@@ -331,7 +369,7 @@ class ContactNet(nn.Module):
             self.decoder.append(level(arch.trunk, w[i] + w[i - 1], w[i - 1], 1))
         self.context = nn.Sequential(*(ContextBlock(w[-1], d) for d in arch.context))
         self.detection_head = (DetectionHead(w[1], w[-1] if arch.detection_context else 0, arch.detection_blocks,
-                                             arch.detection_motion)
+                                             arch.detection_motion, w[0] if arch.detection_fine else 0)
                                if arch.detection else None)
         self.refinement = Refinement(arch.refine) if arch.refine else None
         self.offset_gate = OffsetGate() if arch.gate else None
@@ -368,6 +406,7 @@ class ContactNet(nn.Module):
             x = block(torch.cat([x, skip], 1))
             if skip is skips[1]:
                 quarter = x
+        half = x
         size = image.shape[-2:]
         # Offsets in units of OFFSET_UNIT_PX and the ground logit, upsampled (and refined).
         predictions = F.interpolate(torch.cat([self.offset_head(x), self.ground_head(x)], 1), size=size,
@@ -380,7 +419,7 @@ class ContactNet(nn.Module):
         if self.detection_head is None:
             return offsets, ground, camera
         motion = motion_channels(image, previous) if self.arch.detection_motion else None
-        return (offsets, ground, camera, *self.detection_head(quarter, bottleneck, motion))
+        return (offsets, ground, camera, *self.detection_head(quarter, bottleneck, motion, half))
 
 
 def camera_features(bottleneck: torch.Tensor) -> torch.Tensor:

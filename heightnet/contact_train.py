@@ -54,7 +54,8 @@ def architecture_of(config: TrainV2Config) -> ContactArchitecture:
                                tuple(config.context), config.detection, config.refine,
                                config.gate, config.position, config.detection and config.detection_context,
                                config.detection_blocks if config.detection else 0,
-                               config.detection and config.detection_motion)
+                               config.detection and config.detection_motion,
+                               config.detection and config.detection_fine)
 
 
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
@@ -122,6 +123,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
 
     sampling = ContactSampling(crop_probability=config.crop_probability,
                                camera_channels=config.camera_channels, detection=config.detection,
+                               detection_stride=architecture_of(config).detection_stride,
                                appearance=config.appearance, still_pairs=config.still_pairs,
                                whole_boxes=config.whole_boxes)
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,

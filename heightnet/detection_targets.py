@@ -32,11 +32,13 @@ MIN_BOX_PX = 4.0
 # A mover less in view than this is boxed by its visible pixels even with whole boxes: the head
 # is not asked to guess a whole walker from a hand (evaluation does not count such objects).
 WHOLE_BOX_MIN_VISIBLE = 0.3
-# Gaussian width as a share of the box (TTFNet's alpha) and its floor in heatmap cells.
+# Gaussian width as a share of the box (TTFNet's alpha) and its floor in input pixels (half a
+# cell of the 1/4 head).
 GAUSSIAN_ALPHA = 0.54
-MIN_SIGMA_CELLS = 0.5
+MIN_SIGMA_PX = 2.0
 # Box targets cover the cells where the object's Gaussian reaches this (about 1.5 sigma) and
-# the eight around its centre (a small person's peak lands one cell off); where regions meet,
+# those within DETECTION_STRIDE pixels of its centre cell (a small person's peak lands one 1/4
+# cell off: the eight around it at 1/4, the 24 at 1/2); where regions meet,
 # the smaller object's wins (TTFNet's rule), but no object takes another's centre. Half of each
 # object's box weight sits at its centre cell, half is spread over its cells in proportion to
 # the Gaussian, so every object weighs the same.
@@ -96,23 +98,24 @@ def window_boxes(instance: np.ndarray, semantic: np.ndarray, scale_x: float, sca
     return boxes
 
 
-def ignored_cells(parked: np.ndarray) -> np.ndarray:
-    """1 x h x w: heatmap cells (DETECTION_STRIDE input pixels square) that show any of a parked
-    vehicle (``parked``: an input-sized boolean mask), plus one cell around them, where a peak
-    of the neighbouring cell would sit."""
-    h, w = parked.shape[0] // DETECTION_STRIDE, parked.shape[1] // DETECTION_STRIDE
-    cells = parked[:h * DETECTION_STRIDE, :w * DETECTION_STRIDE].reshape(h, DETECTION_STRIDE, w, DETECTION_STRIDE)
-    cells = ndimage.binary_dilation(cells.any(axis=(1, 3)), iterations=1)
+def ignored_cells(parked: np.ndarray, stride: int = DETECTION_STRIDE) -> np.ndarray:
+    """1 x h x w: heatmap cells (``stride`` input pixels square) that show any of a parked
+    vehicle (``parked``: an input-sized boolean mask), plus DETECTION_STRIDE pixels around them,
+    where a peak of the neighbouring 1/4 cell would sit."""
+    h, w = parked.shape[0] // stride, parked.shape[1] // stride
+    cells = parked[:h * stride, :w * stride].reshape(h, stride, w, stride)
+    cells = ndimage.binary_dilation(cells.any(axis=(1, 3)), iterations=DETECTION_STRIDE // stride)
     return cells[None].astype(np.float32)
 
 
-def detection_targets(boxes: list[Box], width: int, height: int,
-                      ignore: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def detection_targets(boxes: list[Box], width: int, height: int, ignore: np.ndarray | None = None,
+                      stride: int = DETECTION_STRIDE) -> dict[str, np.ndarray]:
     """``centre`` C x h x w heatmap in [0, 1], ``box`` 4 x h x w (dx, dy in input pixels from the
     cell centre to the box centre; log(w / unit), log(h / unit)), ``box_mask`` 1 x h x w, the
     box loss's weight (one per object, ``BOX_REGION``) and ``ignore`` 1 x h x w (1 = no penalty
-    for a peak there; ``ignored_cells``), zero at centres."""
-    cw, ch = width // DETECTION_STRIDE, height // DETECTION_STRIDE
+    for a peak there; ``ignored_cells``), zero at centres; cells of ``stride`` input pixels."""
+    cw, ch = width // stride, height // stride
+    reach = DETECTION_STRIDE // stride
     centre = np.zeros((len(DETECTION_CLASSES), ch, cw), np.float32)
     box = np.zeros((4, ch, cw), np.float32)
     mask = np.zeros((1, ch, cw), np.float32)
@@ -125,17 +128,17 @@ def detection_targets(boxes: list[Box], width: int, height: int,
     # Big boxes first, so that where centres collide the smaller (harder) object keeps its cell.
     for b in sorted(boxes, key=lambda b: -(b.x1 - b.x0) * (b.y1 - b.y0)):
         cx, cy = (b.x0 + b.x1) / 2, (b.y0 + b.y1) / 2
-        i, j = int(cx // DETECTION_STRIDE), int(cy // DETECTION_STRIDE)
+        i, j = int(cx // stride), int(cy // stride)
         if not (0 <= i < cw and 0 <= j < ch):
             continue
         bw, bh = b.x1 - b.x0, b.y1 - b.y0
-        sx = max(MIN_SIGMA_CELLS, GAUSSIAN_ALPHA * bw / 6 / DETECTION_STRIDE)
-        sy = max(MIN_SIGMA_CELLS, GAUSSIAN_ALPHA * bh / 6 / DETECTION_STRIDE)
+        sx = max(MIN_SIGMA_PX, GAUSSIAN_ALPHA * bw / 6) / stride
+        sy = max(MIN_SIGMA_PX, GAUSSIAN_ALPHA * bh / 6) / stride
         g = np.exp(-((gx - i) ** 2)[None, :] / (2 * sx * sx) - ((gy - j) ** 2)[:, None] / (2 * sy * sy))
         np.maximum(centre[b.cls], g, out=centre[b.cls])
         centre[b.cls, j, i] = 1.0
         region = g >= BOX_REGION
-        region[max(j - 1, 0):j + 2, max(i - 1, 0):i + 2] = True
+        region[max(j - reach, 0):j + reach + 1, max(i - reach, 0):i + reach + 1] = True
         region &= ~centres
         region[j, i] = True
         owner[region] = len(placed)
@@ -149,8 +152,8 @@ def detection_targets(boxes: list[Box], width: int, height: int,
         weight = (1 - CENTRE_BOX_SHARE) * spread / spread.sum()
         weight[j, i] += CENTRE_BOX_SHARE
         rows, cols = np.nonzero(cells)
-        box[0, rows, cols] = (b.x0 + b.x1) / 2 - (gx[cols] + 0.5) * DETECTION_STRIDE
-        box[1, rows, cols] = (b.y0 + b.y1) / 2 - (gy[rows] + 0.5) * DETECTION_STRIDE
+        box[0, rows, cols] = (b.x0 + b.x1) / 2 - (gx[cols] + 0.5) * stride
+        box[1, rows, cols] = (b.y0 + b.y1) / 2 - (gy[rows] + 0.5) * stride
         box[2, rows, cols] = math.log((b.x1 - b.x0) / BOX_UNIT_PX)
         box[3, rows, cols] = math.log((b.y1 - b.y0) / BOX_UNIT_PX)
         mask[0, rows, cols] = weight[rows, cols]

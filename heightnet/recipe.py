@@ -21,7 +21,7 @@ from pathlib import Path
 
 # Every arm is a fresh run of the network as it was then: the whole network trains, and the
 # detection head (where an arm has one) has no residual blocks.
-FRESH_RUN = {"head_only": False, "detection_blocks": 0}
+FRESH_RUN = {"head_only": False, "detection_blocks": 0, "detection_fine": False}
 # The recipe's arms were measured on the first network (no context blocks, no detection head).
 FIRST_NETWORK = {"context": [], "detection": False, "refine": 0, "gate": False, "position": False,
                  "crop_probability": 0.0}

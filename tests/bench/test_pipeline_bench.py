@@ -2,6 +2,8 @@
 
 import math
 
+import pytest
+
 from bench.pipeline_bench import CpuClock
 
 
@@ -18,3 +20,15 @@ def test_fewer_than_two_frames_give_no_number():
     assert math.isnan(cpu.ms_per_frame())
     cpu.on_frame(0, 1, 0.0)
     assert math.isnan(cpu.ms_per_frame())
+
+
+def test_a_run_that_cannot_start_is_one_line_not_a_traceback(tmp_path):
+    """A v2 model needs a camera: without one the bench says so in one line (``--set`` gives it)."""
+    from bench.pipeline_bench import REPO_ROOT, main
+
+    with pytest.raises(SystemExit) as stop:
+        main([str(REPO_ROOT / "recordings" / "sample.mp4"), "--frames", "2", "--set", "height.model=v2"])
+    message = str(stop.value.code)
+    assert message.startswith("pipeline_bench: ") and "camera" in message and "\n" not in message
+    with pytest.raises(SystemExit, match="pipeline_bench: .*no_such"):
+        main(["--frames", "2", "--set", "no_such.key=1"])

@@ -129,3 +129,37 @@ def test_a_motion_head_reads_the_change_and_nothing_else_does():
         assert torch.equal(a, b)
     for name, a, b in zip(("offsets", "ground", "camera", "centre", "box"), first, moved):
         assert torch.equal(a, b) == (name in ("offsets", "ground", "camera")), name
+
+
+def test_a_fine_head_starts_as_the_quarter_head_upsampled_then_learns():
+    """The fine path (``detection_fine``) puts the heatmaps and boxes at 1/2: grown from a 1/4
+    head it starts with that head's logits bilinearly upsampled and with boxes that decode to the
+    same boxes (an offset to a box centre is linear across cells); its correction then learns."""
+    arch = ContactArchitecture(widths=(8, 8, 16, 16), context=(2,), detection=True, detection_blocks=1)
+    torch.manual_seed(0)
+    quarter = ContactNet(arch).eval()
+    with torch.no_grad():
+        for p in quarter.detection_head.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    fine_arch = dataclasses.replace(arch, detection_fine=True)
+    assert fine_arch.grows_from(arch) and not arch.grows_from(fine_arch)
+    assert (arch.detection_stride, fine_arch.detection_stride) == (4, 2)
+    fine = ContactNet(fine_arch).eval()
+    missing, unexpected = fine.load_state_dict(quarter.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("detection_head.fine.") for k in missing)
+    x = torch.randn(1, 3, 64, 96)
+    with torch.no_grad():
+        *_, centre4, box4 = quarter(x)
+        *_, centre2, box2 = fine(x)
+    assert centre4.shape[-2:] == (16, 24) and centre2.shape[-2:] == (32, 48)
+    up = F.interpolate(centre4, scale_factor=2, mode="bilinear", align_corners=False)
+    assert torch.allclose(centre2, up, atol=1e-5)
+    # The box centres the fine cells read are the 1/4 head's decoded centres upsampled (away
+    # from the border, where the upsampling clamps), in input pixels.
+    def decoded_x(box, stride):
+        return (torch.arange(box.shape[-1]) + 0.5) * stride + box[0, 0]
+
+    up_x = F.interpolate(decoded_x(box4, 4)[None, None], scale_factor=2, mode="bilinear", align_corners=False)[0, 0]
+    assert torch.allclose(decoded_x(box2, 2)[1:-1, 1:-1], up_x[1:-1, 1:-1], atol=1e-3)
+    fine(x)[3].sum().backward()
+    assert fine.detection_head.fine[2].weight.grad.abs().sum() > 0

@@ -624,3 +624,34 @@ def test_v2_data_folders_are_read_in_turn_and_too_many_files_is_one_clear_error(
     monkeypatch.setattr(heightnet.contact_data, "build_contact_cache", out_of_files)
     with pytest.raises(ConfigError, match="more files than this machine allows"):
         cli_train.train_v2(args, config)
+
+
+def test_targets_at_half_resolution_ask_for_the_same_boxes_on_twice_the_cells():
+    """A fine head (``detection_fine``) is trained at 1/2: each object's centre is the 2-pixel
+    cell under its box centre, its Gaussian as wide in input pixels, its boxes decode to the same
+    box, and parked vehicles are ignored as far around (in pixels) as at 1/4."""
+    from heightnet.contact_model import BOX_UNIT_PX
+    from heightnet.detection_targets import Box, detection_targets, ignored_cells
+
+    person = Box(0, 41.0, 12.0, 49.0, 44.0)   # centre (45, 28): cell (7, 11) at 1/4, (14, 22) at 1/2
+    quarter = detection_targets([person], 96, 48)
+    half = detection_targets([person], 96, 48, stride=2)
+    assert half["centre"].shape == (3, 24, 48) and quarter["centre"].shape == (3, 12, 24)
+    assert quarter["centre"][0, 7, 11] == 1.0 and half["centre"][0, 14, 22] == 1.0
+    assert (half["centre"] == 1.0).sum() == 1
+    # Equal width in pixels: the Gaussian's share of cells above one half is about four times.
+    assert 3 <= (half["centre"][0] > 0.5).sum() / (quarter["centre"][0] > 0.5).sum() <= 5
+    mask, box = half["box_mask"][0], half["box"]
+    assert mask.sum() == pytest.approx(1.0)
+    rows, cols = np.nonzero(mask)
+    assert {(int(r), int(c)) for r, c in zip(rows, cols)} >= {(r, c) for r in range(12, 17) for c in range(20, 25)}
+    cx = (cols + 0.5) * 2 + box[0, rows, cols]
+    cy = (rows + 0.5) * 2 + box[1, rows, cols]
+    assert np.allclose(cx, 45.0) and np.allclose(cy, 28.0)
+    assert np.allclose(BOX_UNIT_PX * np.exp(box[2:, rows, cols]), [[8.0], [32.0]])
+    parked = np.zeros((48, 64), bool)
+    parked[20:28, 40:56] = True
+    ignore = ignored_cells(parked, stride=2)
+    rows, cols = np.nonzero(ignore[0])
+    assert ignore.shape == (1, 24, 32)
+    assert (rows.min() * 2, (rows.max() + 1) * 2, cols.min() * 2, (cols.max() + 1) * 2) == (16, 32, 36, 60)

@@ -55,6 +55,32 @@ def test_an_exported_head_gives_the_decoded_peaks_in_frame_pixels(detector):
         assert same and abs(expected.scores[same[0]] - score) < 1e-4
 
 
+def test_a_fine_head_exports_at_half_resolution_and_the_run_time_decodes_it(tmp_path):
+    """A head with the fine path (``detection_fine``) writes stride 2 in its metadata; the run time
+    checks its outputs against it and decodes its peaks on 2-pixel cells."""
+    import torch
+
+    from heightnet.contact_model import ContactArchitecture, ContactNet
+
+    torch.manual_seed(0)
+    net = ContactNet(ContactArchitecture(widths=(8, 8, 16, 16), detection=True, detection_fine=True))
+    with torch.no_grad():
+        net.detection_head.centre.bias.fill_(1.0)
+        torch.nn.init.normal_(net.detection_head.fine[2].weight, std=0.5)
+    net.eval()
+    model = HeightNetModel(export_contact_net(tmp_path, net, IN_W, IN_H), threads=1, detection_min_score=0.3)
+    assert model.info.detection_stride == 2
+    image = np.random.default_rng(0).integers(0, 255, (96, 160, 3), dtype=np.uint8)
+    found = model.run(image).detections
+    with torch.no_grad():
+        *_, centre, box = net(torch.from_numpy(model.preprocess(image)))
+    assert centre.shape[-2:] == (IN_H // 2, IN_W // 2)
+    expected = in_frame(centre_detections(centre[0].numpy(), box[0].numpy(), 2, 0.3, 100),
+                        model.info.detection_classes, (IN_W, IN_H), (160, 96))
+    assert len(found) == len(expected) > 0
+    assert np.abs(np.sort(found.boxes, 0) - np.sort(expected.boxes, 0)).max() < 1e-2
+
+
 def test_network_mode_makes_objects_of_an_exported_heads_boxes(detector):
     path, _ = detector
     model = HeightNetModel(path, threads=1, detection_min_score=0.3)
