@@ -113,10 +113,11 @@ def contact_loss(offsets: torch.Tensor, ground_logit: torch.Tensor, camera: torc
         centre_logit, box = detection
         ignore = batch["det_ignore"].flatten(0, 1) if "det_ignore" in batch else None
         losses["centre"] = centre_focal(centre_logit, batch["det_centre"].flatten(0, 1), ignore)
-        losses["box"] = box_l1(box, batch["det_box"].flatten(0, 1), batch["det_box_mask"].flatten(0, 1))
+        box_target, box_mask = batch["det_box"].flatten(0, 1), batch["det_box_mask"].flatten(0, 1)
+        losses["box"] = box_l1(box, box_target, box_mask)
         detection_total = losses["centre"] + losses["box"]
         if weights.box_giou > 0:
-            losses["giou"] = box_giou(box, batch["det_box"].flatten(0, 1), batch["det_box_mask"].flatten(0, 1))
+            losses["giou"] = box_giou(box, box_target, box_mask)
             detection_total = detection_total + weights.box_giou * losses["giou"]
         losses["total"] = losses["total"] + weights.detection * detection_total
     losses["decoded"] = height.detach()

@@ -123,7 +123,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
 
     sampling = ContactSampling(crop_probability=config.crop_probability,
                                camera_channels=config.camera_channels, detection=config.detection,
-                               detection_stride=architecture_of(config).detection_stride,
+                               detection_stride=net.arch.detection_stride,
                                appearance=config.appearance, still_pairs=config.still_pairs,
                                whole_boxes=config.whole_boxes)
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
