@@ -136,6 +136,10 @@ class ObjectsConfig:
     """Network mode: ... and that share is at least this much above the foreground share of the
     ring around the box: rain, sensor noise at dusk and swaying grass move everywhere, a walker
     moves against a still background."""
+    still_s: float = 0.0
+    """Network mode: a weak box (at least ``score_motion``) that does not move is an object when a
+    box of its class lay where it lies (IoU >= 0.5) in every frame of the last ``still_s`` seconds:
+    a person standing still scores as weakly as a walker but never moves (0 = off)."""
     continue_score: float = 0.2
     """Network mode: a box weaker than that, scoring at least this, moving or not, may carry on a
     confirmed track it overlaps (IoU >= 0.5 with its prediction) but never starts one (ByteTrack's
@@ -643,8 +647,8 @@ MOVED_KEYS = {("tracking", name): "objects" for name in (
 """(old section, key) -> the section that holds the key now (object extraction left [tracking];
 keys added to [objects] since were never in [tracking])."""
 NETWORK_OBJECTS_KEYS = ("score_person", "score_cyclist", "score_vehicle", "score_motion", "moving_share",
-                        "motion_contrast", "continue_score", "motion_ends", "keep_motion_blobs",
-                        "vehicle_height_percentile")
+                        "motion_contrast", "still_s", "continue_score", "motion_ends",
+                        "keep_motion_blobs", "vehicle_height_percentile")
 """[objects] keys that only ``source = "network"`` reads."""
 
 

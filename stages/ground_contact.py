@@ -133,22 +133,26 @@ def heights_from_offsets(camera: PinholeCamera, offsets: np.ndarray) -> np.ndarr
     """Height in metres above the ground (H x W) seen at each pixel, from its contact offset."""
     h, w = offsets.shape[:2]
     M = ray_matrix(camera)
-    r_p = pixel_grid(w, h) @ M[:2] + M[2]
+    u, v = np.arange(w, dtype=np.float64)[None, :], np.arange(h, dtype=np.float64)[:, None]
+    du, dv = offsets[..., 0].astype(np.float64), offsets[..., 1].astype(np.float64)
     # Rays are affine in the pixel, so the contact point's ray is the pixel's plus the offset's
-    # share (the same numbers as world_rays(uv + offsets) to ~1e-16, at a third of the cost).
-    r_f = r_p + offsets.astype(np.float64) @ M[:2]
+    # share (the same numbers as world_rays(uv + offsets) to ~1e-16). Built one component at a
+    # time from a row and a column: no H x W x 2 grid or matrix product (1.8 -> 0.5 ms at 320x180).
+    r_p = [u * M[0, k] + v * M[1, k] + M[2, k] for k in range(3)]
+    r_f = [r_p[k] + du * M[0, k] + dv * M[1, k] for k in range(3)]
     return _height(r_p, r_f, camera.C[2], np).astype(np.float32)
 
 
 def _height(r_p, r_f, c_z, xp):
-    """The closed form shared by NumPy and torch (``xp`` is the array module)."""
-    norm_f = xp.sqrt((r_f * r_f).sum(-1))
-    descent = xp.minimum(r_f[..., 2], -MIN_DESCENT * norm_f)
-    dot = (r_f[..., 0] * r_p[..., 0] + r_f[..., 1] * r_p[..., 1])
-    horizontal = r_p[..., 0] ** 2 + r_p[..., 1] ** 2 + 1e-12
+    """The closed form shared by NumPy and torch (``xp`` is the array module); the rays through
+    the pixel (``r_p``) and its contact point (``r_f``) as their x, y, z components."""
+    norm_f = xp.sqrt(r_f[0] * r_f[0] + r_f[1] * r_f[1] + r_f[2] * r_f[2])
+    descent = xp.minimum(r_f[2], -MIN_DESCENT * norm_f)
+    dot = r_f[0] * r_p[0] + r_f[1] * r_p[1]
+    horizontal = r_p[0] ** 2 + r_p[1] ** 2 + 1e-12
     # G_xy - C_xy = (-C_z / r_f,z) r_f,xy; H = C_z + s r_p,z
     s = (-c_z / descent) * dot / horizontal
-    return c_z + s * r_p[..., 2]
+    return c_z + s * r_p[2]
 
 
 # --------------------------------------------------------------------------- torch
@@ -172,5 +176,5 @@ def torch_heights_from_offsets(offsets, K, R, C):
 
     r_p = rays(uv)
     r_f = rays(uv + offsets)
-    height = _height(r_p, r_f, C[:, 2:3], torch)
+    height = _height(r_p.unbind(-1), r_f.unbind(-1), C[:, 2:3], torch)
     return height.view(b, 1, h, w)

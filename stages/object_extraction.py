@@ -43,6 +43,7 @@ The stage is this module (the per-frame flow and its state); the background mode
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, replace
 
 import cv2
@@ -53,7 +54,7 @@ from core.packets import NETWORK, Detection, FramePacket, Measurement
 from stages.association import Region, points_in_regions
 from stages.background_model import FOREGROUND_VALUE, drop_small_pieces, make_background_subtractor
 from stages.blob_splitting import split_by_foreground, split_by_heads, split_by_height_peaks
-from stages.network_objects import check_config, motion_blob_floor, network_objects, uncovered_blobs
+from stages.network_objects import check_config, motion_blob_floor, network_objects, still_candidates, uncovered_blobs
 from stages.object_measurements import (coarse_class, fit_box_to_ends, foot_above_ground, foreground_ends,
                                         height_noise, moving_beyond_ends, robust_top, seen_outline)
 
@@ -90,6 +91,8 @@ class ObjectExtractionConstants:
     # Matched points an object needs for a height-consistency residual: a median of fewer is one
     # point's word.
     min_consistency_points: int = 3
+    # Frame times within this many seconds are the same instant (``still_s``'s window ends).
+    time_epsilon_s: float = 1e-3
 
 
 CONSTANTS = ObjectExtractionConstants()
@@ -145,6 +148,8 @@ class ObjectExtractor:
         self.kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self.grow_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * CONSTANTS.grow_radius + 1,) * 2)
         self._prev_height_map: np.ndarray | None = None
+        # (time, network boxes) of the last frames, that a weak box standing still is compared with.
+        self._earlier_boxes: deque[tuple[float, list]] = deque()
         # Denoising exists to keep specks from joining blobs: without blobs it stays off.
         self._denoise: bool | None = None if self._blobs else False
         self._ends_subtractor = None
@@ -198,12 +203,28 @@ class ObjectExtractor:
         src_h, src_w = packet.frame.image.shape[:2]
         edge, _ = self._image_edge(packet.image_valid, (src_w, src_h), scale, work_size)
         detections = network_objects(packet.network_detections, self.config, self.height_threshold_m,
-                                     packet.height_map, packet.ground_mask, packet.foreground, edge)
+                                     packet.height_map, packet.ground_mask, packet.foreground, edge,
+                                     self._still_window(packet.frame.time_s))
+        if self.config.still_s > 0:
+            self._earlier_boxes.append((packet.frame.time_s,
+                                        still_candidates(packet.network_detections, self.config, (src_w, src_h))))
         floor = motion_blob_floor(self.config, src_h)
         blobs = self._blob_detections(packet, masks, scale, work_size, floor) or []
         # A weak box (continues_only) may find no track to carry on: it hides no blob.
         detections += uncovered_blobs(blobs, [d for d in detections if not d.continues_only], floor)
         return detections
+
+    def _still_window(self, now_s: float) -> list[list]:
+        """The network boxes of every frame of the last ``still_s`` seconds (``network_objects``'s
+        ``earlier``), or none while the run has not seen that long; older frames are forgotten."""
+        window = self.config.still_s
+        if window <= 0:
+            return []
+        while self._earlier_boxes and self._earlier_boxes[0][0] < now_s - window - CONSTANTS.time_epsilon_s:
+            self._earlier_boxes.popleft()
+        if not self._earlier_boxes or self._earlier_boxes[0][0] > now_s - window + CONSTANTS.time_epsilon_s:
+            return []
+        return [boxes for _, boxes in self._earlier_boxes]
 
     def _blob_detections(self, packet: FramePacket, masks: ForegroundMasks | None, scale: float,
                          work_size: tuple[int, int], min_height_px: float = 0.0) -> list[Detection] | None:

@@ -157,6 +157,41 @@ def test_thresholds_per_class_and_motion_as_a_cue(who, cls, score, kept):
     assert detection.continues_only == (kept == "weak")
 
 
+def _frames_of_the_stander(config: ObjectsConfig, boxes: list[NetworkDetections]) -> list[list[Detection]]:
+    """The stander alone (in the primed background: it never moves), ten frames a second; frame i's
+    network detections are ``boxes[i]``. Each frame's detections."""
+    extractor = ObjectExtractor(config, GroundConfig())
+    extractor.prime_background([scene([STANDER])[0]] * 3)
+    image, heights, ground = scene([STANDER])
+    return [extractor.process(FramePacket(Frame(index, index / 10, image), CameraInfo(WIDTH, HEIGHT),
+                                          ground_mask=ground, height_map=heights,
+                                          network_detections=found_here)).detections
+            for index, found_here in enumerate(boxes)]
+
+
+@pytest.mark.parametrize("still_s, score, gap_at, class_before, first_object", [
+    (0.5, 0.4, None, "person", 5),      # the same box in every frame of the last 0.5 s: from the sixth frame on
+    (0.0, 0.4, None, "person", None),   # off: a weak box is an object only while it moves
+    (0.5, 0.4, 3, "person", 9),         # a frame without it: the half second starts again after it
+    (0.5, 0.4, None, "cyclist", None),  # a box of another class lay there: not the same object
+    (0.5, 0.3, None, "person", None),   # under score_motion: never, as for motion
+])
+def test_a_weak_box_that_stays_put_is_an_object_once_it_stayed_long_enough(still_s, score, gap_at, class_before,
+                                                                             first_object):
+    config = dataclasses.replace(NETWORK_MODE, score_motion=0.35, continue_score=0.2, still_s=still_s)
+    frames = 10
+    boxes = [found((class_before if index < frames - 1 else "person", score, box_of(STANDER)))
+             if index != gap_at else found() for index in range(frames)]
+    detections = _frames_of_the_stander(config, boxes)
+    objects = [index for index, found_here in enumerate(detections)
+               if any(d.cls == "person" and not d.continues_only for d in found_here)]
+    if first_object is None:
+        assert objects == []
+        assert detections[-1][0].continues_only     # still there, to carry on a track only
+    else:
+        assert objects == list(range(first_object, frames))
+
+
 def test_a_weak_box_hides_no_big_motion_blob():
     """A weak box may find no track to carry on: the big moving blob under it stays an object."""
     tall = walker(7, tall=100)
@@ -394,6 +429,8 @@ def test_thresholds_come_from_the_config_and_bad_values_are_errors(tmp_path):
         for source in ("blobs", "network"):
             with pytest.raises(ConfigError, match="objects.height_percentile must be above 0 and at most 100"):
                 ObjectExtractor(ObjectsConfig(source=source, height_percentile=bad), GroundConfig())
+    with pytest.raises(ConfigError, match="objects.still_s must be 0"):
+        ObjectExtractor(ObjectsConfig(source="network", still_s=-1.0), GroundConfig())
     with pytest.raises(ConfigError, match="score_bus"):
         check_classes(NETWORK_MODE, ["person", "bus"], "model.onnx")
 
