@@ -41,6 +41,7 @@ def small_config(out, **kw) -> TrainV2Config:
 
 
 @pytest.mark.parametrize("sampling", [ContactSampling(), ContactSampling(crop_probability=1.0),
+                                      ContactSampling(zoom_probability=1.0),
                                       ContactSampling(camera_channels=True)])
 def test_samples_decode_to_their_own_heights(contact_sequences, sampling):
     """Whatever the window, flip and squash, the sample's offsets decode with the sample's camera
@@ -61,7 +62,7 @@ def test_samples_decode_to_their_own_heights(contact_sequences, sampling):
             # float16 storage and the resampling's sub-pixel shift: a few centimetres at most.
             assert np.median(np.abs(decoded - truth)[movers]) < 0.03
         assert sample["image"].shape == (2, 3, 48, 64)
-        assert sample["camera_valid"] == (sampling.crop_probability == 0)
+        assert sample["camera_valid"] == (sampling.crop_probability == 0 and sampling.zoom_probability == 0)
         assert ("camera_channels" in sample) == sampling.camera_channels
 
 
@@ -82,6 +83,32 @@ def test_still_pairs_show_one_frame_twice_and_leave_the_other_pairs_as_drawn(con
         assert np.array_equal(still["instance"][1], before["instance"][1])
         assert not still["match_valid"].any() and before["match_valid"].any()
         assert not np.array_equal(before["image"][0], before["image"][1])
+
+
+def test_zoomed_windows_enlarge_the_objects_and_leave_the_other_pairs_as_drawn(contact_sequences):
+    """A zoomed window is smaller than the input and enlarged to it, so its objects' boxes are
+    bigger than in the same pair drawn whole; with the option at 0 every pair is drawn bit for bit
+    as before it existed (committed runs reproduce)."""
+    sampling = ContactSampling(detection=True, crop_probability=0.5)
+    plain = ContactPairDataset(contact_sequences, 64, 48, sampling, seed=3)
+    never = ContactPairDataset(contact_sequences, 64, 48, dataclasses.replace(sampling, zoom_probability=0.0), seed=3)
+    always = ContactPairDataset(contact_sequences, 64, 48, dataclasses.replace(sampling, zoom_probability=1.0), seed=3)
+    whole = ContactPairDataset(contact_sequences, 64, 48, ContactSampling(detection=True), seed=3)
+
+    def heights(sample):
+        centres = np.argwhere(sample["det_centre"][1].max(0) == 1.0)
+        return [float(np.exp(sample["det_box"][1][3, j, i])) for j, i in centres]
+
+    zoomed, squashed = [], []
+    for item in range(len(plain)):
+        before, same = plain[item], never[item]
+        for key in before:
+            assert np.array_equal(before[key], same[key], equal_nan=True), key
+        sample = always[item]
+        assert not sample["camera_valid"] and sample["image"].shape == (2, 3, 48, 64)
+        zoomed += heights(sample)
+        squashed += heights(whole[item])
+    assert zoomed and squashed and np.median(zoomed) > 2.0 * np.median(squashed)
 
 
 def test_resumed_training_equals_an_uninterrupted_run(contact_sequences, tmp_path):
