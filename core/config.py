@@ -555,7 +555,8 @@ class TrainV2Config:
     zoom_crops: float = 0.0
     """Share of samples that are windows smaller than the input around a mover, enlarged to it
     (1.5-3x): near objects, 80 px tall and more at 320x240, are rare in whole frames and native
-    crops, and the head found almost none of them (0 = none: samples drawn as before)."""
+    crops, and the head found almost none of them (0 = none: samples drawn as before). Tried 0.3
+    for the head alone, 40 minutes: it still found none (docs/results.md)."""
     whole_boxes: bool = False
     """Detection boxes span the whole object, hidden parts included (the generator's boxes, as
     evaluation scores them), for objects at least 30 % in view; False: the pixels in view. Taught

@@ -261,8 +261,9 @@ class ContactPairDataset:
         Zoomed windows (``zoom_probability``, drawn only where asked for, so that runs without
         them draw the windows they drew before) are smaller than the input and enlarged to it:
         a car passing a 3.5 m camera is 80-160 px tall in a 320x240 frame, and whole frames and
-        native crops of the 640x480 renders show objects that big too rarely for the head to
-        learn them (dev set: found 8 % of the time, none taller)."""
+        native crops of the 640x480 renders show objects that big rarely, and the head found 8 %
+        of them (none taller). Forty minutes of the head alone at 0.3 did not change that
+        (docs/results.md, 2026-12-06, thirty-third session)."""
         _, height, width, _ = seq.rgb.shape
         W, H = self.size
         zoom = bool(self.augment and self.sampling.zoom_probability > 0
