@@ -36,6 +36,7 @@ import numpy as np
 from core.config import NETWORK_OBJECTS_KEYS, ObjectsConfig
 from core.errors import ConfigError
 from core.packets import NETWORK, Detection, Measurement, NetworkDetections
+from stages.centre_detections import box_iou
 from stages.object_measurements import foot_above_ground, height_noise, robust_top
 
 SOURCES = ("blobs", "network")
@@ -188,19 +189,9 @@ def _still(box: np.ndarray, cls: str, earlier: list[list[tuple[np.ndarray, str]]
         return False
     for boxes in earlier:
         same = [other for other, other_cls in boxes if other_cls == cls]
-        if not same or _iou(box, np.asarray(same)).max() < CONSTANTS.still_iou:
+        if not same or box_iou(box[None], np.asarray(same))[0].max() < CONSTANTS.still_iou:
             return False
     return True
-
-
-def _iou(box: np.ndarray, others: np.ndarray) -> np.ndarray:
-    """IoU of one box (x0, y0, x1, y1) with each of ``others`` (N x 4)."""
-    width = np.clip(np.minimum(box[2], others[:, 2]) - np.maximum(box[0], others[:, 0]), 0, None)
-    height = np.clip(np.minimum(box[3], others[:, 3]) - np.maximum(box[1], others[:, 1]), 0, None)
-    inter = width * height
-    area = (box[2] - box[0]) * (box[3] - box[1])
-    areas = (others[:, 2] - others[:, 0]) * (others[:, 3] - others[:, 1])
-    return inter / np.maximum(area + areas - inter, 1e-9)
 
 
 def _inside_any(box: np.ndarray, others: list[np.ndarray]) -> float:
