@@ -557,6 +557,11 @@ class TrainV2Config:
     (1.5-3x): near objects, 80 px tall and more at 320x240, are rare in whole frames and native
     crops, and the head found almost none of them (0 = none: samples drawn as before). Tried 0.3
     for the head alone, 40 minutes: it still found none (docs/results.md)."""
+    centre_core: float = 0.0
+    """Objects at least 64 input pixels tall are centres wherever their heatmap Gaussian reaches
+    this (0 = at their centre cell alone, CenterNet's target; ``heightnet.detection_targets``).
+    Tried 0.9 for the head alone with ``zoom_crops`` 0.3, 40 minutes: the head found near, big
+    objects twice as often but lost HOTA on the dev set (docs/results.md, 2026-12-07)."""
     whole_boxes: bool = False
     """Detection boxes span the whole object, hidden parts included (the generator's boxes, as
     evaluation scores them), for objects at least 30 % in view; False: the pixels in view. Taught

@@ -234,6 +234,7 @@ class ContactSampling:
     whole_boxes: bool = False          # box targets span the whole object, hidden parts too (``window_boxes``)
     zoom_probability: float = 0.0      # share of windows smaller than the input around a mover, enlarged
     zoom_range: tuple[float, float] = (1.5, 3.0)  # how many times such a window is enlarged
+    centre_core: float = 0.0           # big objects are centres where their Gaussian reaches this
 
 
 class ContactPairDataset:
@@ -325,7 +326,7 @@ class ContactPairDataset:
                 parked = _nearest((semantic == PARKED_VEHICLE_ID).astype(np.uint8), W, H) > 0
                 stride = self.sampling.detection_stride
                 ignore = ignored_cells(parked[:, ::-1] if flip else parked, stride)
-                for key, value in detection_targets(boxes, W, H, ignore, stride).items():
+                for key, value in detection_targets(boxes, W, H, ignore, stride, self.sampling.centre_core).items():
                     detection[key].append(value)
             rgb = cv2.resize(np.asarray(seq.rgb[frame][win]), (W, H), interpolation=cv2.INTER_AREA)
             off = _nearest(np.asarray(seq.offsets[frame][win], np.float32), W, H) * np.float32([sx, sy])

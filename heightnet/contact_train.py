@@ -125,7 +125,8 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                                camera_channels=config.camera_channels, detection=config.detection,
                                detection_stride=net.arch.detection_stride,
                                appearance=config.appearance, still_pairs=config.still_pairs,
-                               whole_boxes=config.whole_boxes, zoom_probability=config.zoom_crops)
+                               whole_boxes=config.whole_boxes, zoom_probability=config.zoom_crops,
+                               centre_core=config.centre_core)
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
                                  config.max_matches, config.seed)
     per_epoch = max(1, len(dataset) // config.batch_size)

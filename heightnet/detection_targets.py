@@ -44,6 +44,9 @@ MIN_SIGMA_PX = 2.0
 # the Gaussian, so every object weighs the same.
 BOX_REGION = 0.3
 CENTRE_BOX_SHARE = 0.5
+# With a centre core (``detection_targets``' ``core``), objects at least this tall (input pixels)
+# are centres wherever their Gaussian reaches ``core``, not at one cell (``CentreCore``).
+CORE_MIN_PX = 64.0
 
 
 @dataclass(frozen=True)
@@ -109,11 +112,19 @@ def ignored_cells(parked: np.ndarray, stride: int = DETECTION_STRIDE) -> np.ndar
 
 
 def detection_targets(boxes: list[Box], width: int, height: int, ignore: np.ndarray | None = None,
-                      stride: int = DETECTION_STRIDE) -> dict[str, np.ndarray]:
+                      stride: int = DETECTION_STRIDE, core: float = 0.0) -> dict[str, np.ndarray]:
     """``centre`` C x h x w heatmap in [0, 1], ``box`` 4 x h x w (dx, dy in input pixels from the
     cell centre to the box centre; log(w / unit), log(h / unit)), ``box_mask`` 1 x h x w, the
     box loss's weight (one per object, ``BOX_REGION``) and ``ignore`` 1 x h x w (1 = no penalty
-    for a peak there; ``ignored_cells``), zero at centres; cells of ``stride`` input pixels."""
+    for a peak there; ``ignored_cells``), zero at centres; cells of ``stride`` input pixels.
+
+    ``core`` > 0: an object at least ``CORE_MIN_PX`` tall is a centre at every cell it owns where
+    its Gaussian reaches ``core``, not at its centre cell alone. Why: the head scored near, big
+    objects' centre cells at 0.05-0.09 even on its own training samples (docs/results.md,
+    2026-12-07): inside a van's flat side one cell looks like the next, so one cell of 1 among
+    cells of 0.9 is a target the head cannot place, and the loss settled on a low score all over
+    the object. A core of cells is one it can; the objects stage already drops boxes lying inside
+    a stronger one, so one object's several peaks leave one box."""
     cw, ch = width // stride, height // stride
     reach = DETECTION_STRIDE // stride
     centre = np.zeros((len(DETECTION_CLASSES), ch, cw), np.float32)
@@ -151,6 +162,9 @@ def detection_targets(boxes: list[Box], width: int, height: int, ignore: np.ndar
         spread = np.where(cells, g, 0.0)
         weight = (1 - CENTRE_BOX_SHARE) * spread / spread.sum()
         weight[j, i] += CENTRE_BOX_SHARE
+        if core > 0 and b.y1 - b.y0 >= CORE_MIN_PX:
+            centre[b.cls][cells & (g >= core)] = 1.0
+            centres |= cells & (g >= core)
         rows, cols = np.nonzero(cells)
         box[0, rows, cols] = (b.x0 + b.x1) / 2 - (gx[cols] + 0.5) * stride
         box[1, rows, cols] = (b.y0 + b.y1) / 2 - (gy[rows] + 0.5) * stride

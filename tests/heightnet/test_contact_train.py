@@ -532,6 +532,26 @@ def test_box_targets_cover_the_cells_around_each_centre_and_point_to_its_box():
     assert len(owner) > 3 * 5
 
 
+def test_a_centre_core_marks_big_objects_over_several_cells_and_small_ones_at_one():
+    """With ``core``, a van 100 x 160 px is a centre over a block of cells round its centre cell,
+    all its own (their boxes decode to the van), never ignored; a walker 10 x 30 px stays one
+    cell; without ``core`` the van is one cell too. Cells of 2 px (the half-resolution head)."""
+    from heightnet.detection_targets import Box, detection_targets
+
+    van = Box(2, 20.0, 20.0, 120.0, 180.0)
+    walker = Box(0, 200.0, 100.0, 210.0, 130.0)
+    ignore = np.ones((1, 240 // 2, 320 // 2), np.float32)
+    cored = detection_targets([van, walker], 320, 240, ignore, 2, core=0.9)
+    plain = detection_targets([van, walker], 320, 240, None, 2)
+    assert (plain["centre"] == 1).sum() == 2
+    van_cells = np.argwhere(cored["centre"][2] == 1)
+    assert 10 <= len(van_cells) <= 40 and (cored["centre"][0] == 1).sum() == 1
+    rows, cols = van_cells[:, 0], van_cells[:, 1]
+    cx = (cols + 0.5) * 2 + cored["box"][0, rows, cols]
+    assert np.allclose(cx, 70.0, atol=1e-3) and (cored["box_mask"][0, rows, cols] > 0).all()
+    assert (cored["ignore"][0, rows, cols] == 0).all()
+
+
 def test_the_detection_head_gets_its_own_learning_rate_from_its_step_on():
     from heightnet.contact_train import group_learning_rates
 
