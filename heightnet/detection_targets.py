@@ -45,7 +45,8 @@ MIN_SIGMA_PX = 2.0
 BOX_REGION = 0.3
 CENTRE_BOX_SHARE = 0.5
 # With a centre core (``detection_targets``' ``core``), objects at least this tall (input pixels)
-# are centres wherever their Gaussian reaches ``core``, not at one cell (``CentreCore``).
+# are centres wherever their Gaussian reaches ``core``, not at one cell: near objects, the ones
+# the head missed (80 px and more at 320x240), and no walker of the usual 10-40 px.
 CORE_MIN_PX = 64.0
 
 
