@@ -560,8 +560,9 @@ class TrainV2Config:
     centre_core: float = 0.0
     """Objects at least 64 input pixels tall are centres wherever their heatmap Gaussian reaches
     this (0 = at their centre cell alone, CenterNet's target; ``heightnet.detection_targets``).
-    Tried 0.9 for the head alone with ``zoom_crops`` 0.3, 40 minutes: the head found near, big
-    objects twice as often but lost HOTA on the dev set (docs/results.md, 2026-12-07)."""
+    Tried 0.9 for the head alone with ``zoom_crops`` 0.3, 40 + 30 minutes: without the big-blob
+    rule the head found twice the near, big objects, but the dev set lost HOTA (0.473 -> 0.465) and
+    vehicle heights (docs/results.md, 2026-12-07)."""
     whole_boxes: bool = False
     """Detection boxes span the whole object, hidden parts included (the generator's boxes, as
     evaluation scores them), for objects at least 30 % in view; False: the pixels in view. Taught
