@@ -164,8 +164,9 @@ def detection_targets(boxes: list[Box], width: int, height: int, ignore: np.ndar
         weight = (1 - CENTRE_BOX_SHARE) * spread / spread.sum()
         weight[j, i] += CENTRE_BOX_SHARE
         if core > 0 and b.y1 - b.y0 >= CORE_MIN_PX:
-            centre[b.cls][cells & (g >= core)] = 1.0
-            centres |= cells & (g >= core)
+            core_cells = cells & (g >= core)
+            centre[b.cls][core_cells] = 1.0
+            centres |= core_cells
         rows, cols = np.nonzero(cells)
         box[0, rows, cols] = (b.x0 + b.x1) / 2 - (gx[cols] + 0.5) * stride
         box[1, rows, cols] = (b.y0 + b.y1) / 2 - (gy[rows] + 0.5) * stride
