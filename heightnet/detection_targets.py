@@ -125,7 +125,9 @@ def detection_targets(boxes: list[Box], width: int, height: int, ignore: np.ndar
     2026-12-07): inside a van's flat side one cell looks like the next, so one cell of 1 among
     cells of 0.9 is a target the head cannot place, and the loss settled on a low score all over
     the object. A core of cells is one it can; the objects stage already drops boxes lying inside
-    a stronger one, so one object's several peaks leave one box."""
+    a stronger one, so one object's several peaks leave one box. Measured later, what helped near
+    objects was the core's weight in the focal loss (each cell counts as an object), not its
+    shape, and small walkers paid for it (docs/results.md, 2026-12-07, thirty-sixth session)."""
     cw, ch = width // stride, height // stride
     reach = DETECTION_STRIDE // stride
     centre = np.zeros((len(DETECTION_CLASSES), ch, cw), np.float32)
