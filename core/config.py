@@ -529,6 +529,14 @@ class TrainV2Config:
     path upsamples the head and corrects it from the decoder's 1/2 features (starts as the 1/4
     outputs upsampled; heightnet/contact_model.py ``DetectionHead``). Grown at step 119,752 of the
     committed run."""
+    detection_big: bool = False
+    """A second detection head of its own for near, big objects (64 input pixels tall and more) on
+    the 1/16 context features (heightnet/contact_model.py ``BigObjectHead``): the 1/2 head finds
+    almost none of them, and teaching it them cost it small walkers (docs/results.md, 2026-12-07).
+    A network grown with it starts with an empty big-object heatmap."""
+    big_head_only: bool = False
+    """Train the big-object head alone: everything else, the rest of the detection head included,
+    keeps its averaged weights, so what the small head finds stays bit for bit."""
     head_only: bool = True
     """Train the detection head alone: the rest of the network keeps its averaged weights,
     BatchNorm included, so heights stay as they are and a step costs about half (no backward pass

@@ -143,6 +143,9 @@ class NetworkDetections:
     """The network's class of each box ("person", "cyclist", "vehicle": the model's metadata names them)."""
     scores: np.ndarray
     """N float32: the centre heatmap's probability at the peak."""
+    big_objects: bool = False
+    """The network has a head of its own for near, big objects (``big_centre_logit``): the objects
+    stage then needs no motion blobs standing in for the objects a head without one misses."""
 
     def __len__(self) -> int:
         return len(self.scores)

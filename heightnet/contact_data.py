@@ -36,7 +36,7 @@ from stages.ground_contact import PinholeCamera, angles_of, contact_offsets, wor
 from heightnet.appearance import apply_appearance, draw_appearance, pair_texture
 from heightnet.data import Augmentation, apply_colour, colour_jitter, match_features, window_matches
 from heightnet.contact_model import DETECTION_STRIDE
-from heightnet.detection_targets import detection_targets, ignored_cells, window_boxes
+from heightnet.detection_targets import big_object_targets, detection_targets, ignored_cells, window_boxes
 from synth.dataset import PARKED_VEHICLE_ID
 
 CACHE_VERSION = 3
@@ -235,6 +235,7 @@ class ContactSampling:
     zoom_probability: float = 0.0      # share of windows smaller than the input around a mover, enlarged
     zoom_range: tuple[float, float] = (1.5, 3.0)  # how many times such a window is enlarged
     centre_core: float = 0.0           # big objects are centres where their Gaussian reaches this
+    big_objects: bool = False          # targets of the big-object head too (``big_object_targets``)
 
 
 class ContactPairDataset:
@@ -298,7 +299,8 @@ class ContactPairDataset:
         (3) of the window's camera, camera_target (3) with camera_valid, matches Kx4 with
         match_valid, and camera_channels 2x2xHxW when enabled, window 2x4 (``position_window``),
         and with detection det_centre 2x3xhxw, det_box 2x4xhxw, det_box_mask 2x1xhxw, det_ignore
-        2x1xhxw at 1/4 of the input. Images and labels keep compact types (0.4 of the bytes in
+        2x1xhxw at 1/4 of the input (the head's stride), and with big objects the same four
+        prefixed ``det_big_`` at 1/16. Images and labels keep compact types (0.4 of the bytes in
         float32: what loader processes copy) until ``contact_train.training_batch`` widens a
         batch where the network runs."""
         s, t = self.index[item]
@@ -316,6 +318,8 @@ class ContactPairDataset:
         camera = seq.camera.window(x0, y0, w, h, W, H, flip)
         images, offsets, heights, grounds, instances = [], [], [], [], []
         detection: dict[str, list[np.ndarray]] = {"centre": [], "box": [], "box_mask": [], "ignore": []}
+        if self.sampling.big_objects:
+            detection.update({f"big_{key}": [] for key in ("centre", "box", "box_mask", "ignore")})
         for frame in (t, t) if still else (t - 1, t):
             win = (slice(y0, y0 + h), slice(x0, x0 + w))
             if self.sampling.detection:
@@ -325,9 +329,13 @@ class ContactPairDataset:
                                      whole, (x0, y0))
                 parked = _nearest((semantic == PARKED_VEHICLE_ID).astype(np.uint8), W, H) > 0
                 stride = self.sampling.detection_stride
-                ignore = ignored_cells(parked[:, ::-1] if flip else parked, stride)
+                parked = parked[:, ::-1] if flip else parked
+                ignore = ignored_cells(parked, stride)
                 for key, value in detection_targets(boxes, W, H, ignore, stride, self.sampling.centre_core).items():
                     detection[key].append(value)
+                if self.sampling.big_objects:
+                    for key, value in big_object_targets(boxes, W, H, parked).items():
+                        detection[f"big_{key}"].append(value)
             rgb = cv2.resize(np.asarray(seq.rgb[frame][win]), (W, H), interpolation=cv2.INTER_AREA)
             off = _nearest(np.asarray(seq.offsets[frame][win], np.float32), W, H) * np.float32([sx, sy])
             hgt = _nearest(np.asarray(seq.height_m[frame][win], np.float32), W, H)

@@ -4,7 +4,8 @@ The graph's input size is free (the metadata names the one it was trained at); i
 the network knows: ``offsets`` (1 x 2 x H x W, input pixels to each
 pixel's ground-contact point), ``ground_logit`` (1 x 1 x H x W) and ``camera`` (1 x 6: pitch,
 roll, log vertical focal length in image heights, then their log-variances) and, with a
-detection head, ``centre_logit`` (1 x 3 x H/4 x W/4) and ``box`` (1 x 4 x H/4 x W/4); a head that reads
+detection head, ``centre_logit`` (1 x 3 x H/4 x W/4) and ``box`` (1 x 4 x H/4 x W/4; H/2 x W/2 with
+the fine path), with a big-object head ``big_centre_logit`` and ``big_box`` at H/16 x W/16; a head that reads
 motion (``detection_motion``) takes the frame before as a second input, ``previous_image``. Metres need the
 camera and come from the closed form in ``stages/ground_contact.py`` at run time. The metadata says
 so (``heightpipe.output_units = ground_contact_offsets``) beside the usual input contract.
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from heightnet.contact_model import CAMERA_OUTPUTS, DETECTION_CLASSES, ContactNet
+from heightnet.contact_model import BIG_STRIDE, CAMERA_OUTPUTS, DETECTION_CLASSES, ContactNet
 from heightnet.contact_train import load_network
 from heightnet.export import input_metadata
 from stages.heightnet_model import CONTACT_UNITS, PREVIOUS_INPUT
@@ -30,7 +31,8 @@ OUTPUT_UNITS = CONTACT_UNITS
 
 
 def output_names(net: ContactNet) -> list[str]:
-    return ["offsets", "ground_logit", "camera"] + (["centre_logit", "box"] if net.arch.detection else [])
+    return (["offsets", "ground_logit", "camera"] + (["centre_logit", "box"] if net.arch.detection else [])
+            + (["big_centre_logit", "big_box"] if net.arch.detection and net.arch.detection_big else []))
 
 
 def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int,
@@ -48,6 +50,9 @@ def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int,
     if net.arch.detection:
         outputs["centre_logit"] = {"classes": list(DETECTION_CLASSES), "stride": net.arch.detection_stride}
         outputs["box"] = "centre dx, dy from the cell centre, box width, height; input pixels"
+        if net.arch.detection_big:
+            outputs["big_centre_logit"] = {"classes": list(DETECTION_CLASSES), "stride": BIG_STRIDE}
+            outputs["big_box"] = "as box, for the big-object head's cells"
     return {
         "heightpipe.format_version": "2",
         **input_metadata(width, height),

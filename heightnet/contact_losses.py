@@ -12,6 +12,7 @@ count for more than its pixel share next to a bus of 4,000, so mover pixels are 
           + camera * (Huber fit + NLL of the variance) of the camera heads (whole frames)
           + detection * (CenterNet focal loss on centre heatmaps + L1 on centre offsets and log
             box sizes at object centres), when the network has a detection head
+          + big_objects * (the same two terms of the big-object head at 1/16), when it has one
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import torch
 import torch.nn.functional as F
 
 from stages.ground_contact import torch_heights_from_offsets
-from heightnet.contact_model import BOX_UNIT_PX, DETECTION_STRIDE
+from heightnet.contact_model import BIG_STRIDE, BOX_UNIT_PX, DETECTION_STRIDE
 from heightnet.losses import sample_at
 
 ABOVE_GROUND_M = 0.1
@@ -51,6 +52,7 @@ class ContactLossWeights:
     camera: float = 0.1
     detection: float = 1.0
     box_giou: float = 0.0
+    big_objects: float = 1.0
 
 
 # Instance ids are stored as uint16 (contact_data's cache): below this bound.
@@ -79,9 +81,10 @@ def weighted_mean(values: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
 
 def contact_loss(offsets: torch.Tensor, ground_logit: torch.Tensor, camera: torch.Tensor,
                  batch: dict[str, torch.Tensor], weights: ContactLossWeights,
-                 detection: tuple[torch.Tensor, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+                 detection: tuple[torch.Tensor, ...] | None = None) -> dict[str, torch.Tensor]:
     """All terms for B pairs (network outputs 2B x ..., frames t-1, t interleaved);
-    ``detection`` is the head's (centre logits, boxes) when it has one."""
+    ``detection`` is the head's (centre logits, boxes[, big-object centre logits, boxes]) when it
+    has one."""
     target = batch["offsets"].flatten(0, 1)
     height_true = batch["height"].flatten(0, 1)
     labelled = torch.isfinite(target[:, :1]) & torch.isfinite(height_true)
@@ -110,19 +113,32 @@ def contact_loss(offsets: torch.Tensor, ground_logit: torch.Tensor, camera: torc
                        + weights.consistency * losses["consistency"] + weights.ground * losses["ground"]
                        + weights.camera * losses["camera"])
     if detection is not None and "det_centre" in batch:
-        centre_logit, box = detection
-        ignore = batch["det_ignore"].flatten(0, 1) if "det_ignore" in batch else None
-        losses["centre"] = centre_focal(centre_logit, batch["det_centre"].flatten(0, 1), ignore)
-        box_target, box_mask = batch["det_box"].flatten(0, 1), batch["det_box_mask"].flatten(0, 1)
-        losses["box"] = box_l1(box, box_target, box_mask)
-        detection_total = losses["centre"] + losses["box"]
-        if weights.box_giou > 0:
-            losses["giou"] = box_giou(box, box_target, box_mask)
-            detection_total = detection_total + weights.box_giou * losses["giou"]
+        terms = detection_terms(detection[:2], batch, "det_", DETECTION_STRIDE, weights.box_giou)
+        losses.update(terms)
+        detection_total = terms["centre"] + terms["box"] + weights.box_giou * terms.get("giou", 0.0)
+        if len(detection) == 4 and "det_big_centre" in batch:
+            big = detection_terms(detection[2:], batch, "det_big_", BIG_STRIDE, weights.box_giou)
+            losses.update({f"big_{key}": value for key, value in big.items()})
+            detection_total = detection_total + weights.big_objects * (
+                big["centre"] + big["box"] + weights.box_giou * big.get("giou", 0.0))
         losses["total"] = losses["total"] + weights.detection * detection_total
     losses["decoded"] = height.detach()
     losses["movers"] = movers
     return losses
+
+
+def detection_terms(outputs: tuple[torch.Tensor, ...], batch: dict[str, torch.Tensor], prefix: str,
+                    stride: int, giou: float) -> dict[str, torch.Tensor]:
+    """One detection head's ``centre`` (focal) and ``box`` (L1) terms, and ``giou`` when its weight
+    is set, against the batch's targets named ``prefix`` + centre, box, box_mask, ignore."""
+    centre_logit, box = outputs
+    ignore = batch[f"{prefix}ignore"].flatten(0, 1) if f"{prefix}ignore" in batch else None
+    box_target, box_mask = batch[f"{prefix}box"].flatten(0, 1), batch[f"{prefix}box_mask"].flatten(0, 1)
+    terms = {"centre": centre_focal(centre_logit, batch[f"{prefix}centre"].flatten(0, 1), ignore),
+             "box": box_l1(box, box_target, box_mask, stride)}
+    if giou > 0:
+        terms["giou"] = box_giou(box, box_target, box_mask)
+    return terms
 
 
 def ground_loss(logit: torch.Tensor, ground: torch.Tensor, labelled: torch.Tensor,
@@ -203,13 +219,15 @@ def centre_focal(logit: torch.Tensor, target: torch.Tensor, ignore: torch.Tensor
     return (positive.sum() + negative.sum()) / centres.sum().clamp(min=1.0)
 
 
-def box_l1(box: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """L1 on the centre offset (in cells) and the log box size, weighted by ``mask`` (object
-    centres and the cells around them, ``detection_targets``; one per object)."""
+def box_l1(box: torch.Tensor, target: torch.Tensor, mask: torch.Tensor,
+           stride: int = DETECTION_STRIDE) -> torch.Tensor:
+    """L1 on the centre offset (in cells of ``stride`` input pixels) and the log box size,
+    weighted by ``mask`` (object centres and the cells around them, ``detection_targets``; one
+    per object)."""
     if not (mask > 0).any():
         return box.sum() * 0.0
-    raw = torch.cat([box[:, :2] / DETECTION_STRIDE, torch.log(box[:, 2:] / BOX_UNIT_PX)], 1)
-    goal = torch.cat([target[:, :2] / DETECTION_STRIDE, target[:, 2:]], 1)
+    raw = torch.cat([box[:, :2] / stride, torch.log(box[:, 2:] / BOX_UNIT_PX)], 1)
+    goal = torch.cat([target[:, :2] / stride, target[:, 2:]], 1)
     return ((raw - goal).abs() * mask).sum() / (4 * mask.sum())
 
 

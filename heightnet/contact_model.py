@@ -15,7 +15,9 @@ Outputs for an input of W x H (both multiples of 32):
   width and height, all in input pixels): a CenterNet-style head (Zhou et al. 2019) on the same
   features, so objects cost no second network; with ``detection_motion`` the head also reads
   how much each of its cells changed since the frame before (a second input, ``previous``);
-  with ``detection_fine`` both are at H/2 x W/2.
+  with ``detection_fine`` both are at H/2 x W/2; with ``detection_big`` a second head of its
+  own for near, big objects adds ``big_centre_logit`` B x 3 x H/16 x W/16 and ``big_box``
+  B x 4 x H/16 x W/16 (same meaning, cells of 16 input pixels).
 
 The offset of a pixel on a person's head is the person's height in pixels, so every pixel must
 see down to its object's foot. Four stride-2 levels of two 3x3 convolutions see about 90 input
@@ -78,6 +80,13 @@ OFFSET_UNIT_PX = 32.0
 DEPTHWISE_EXPAND = 3.35
 CAMERA_OUTPUTS = ("pitch_rad", "roll_rad", "log_focal_y")
 DETECTION_CLASSES = ("person", "cyclist", "vehicle")
+# Input pixels per cell of the big-object head (``BigObjectHead``): the deepest features, where a
+# van 100 px tall spans six cells and every cell sees all of it.
+BIG_STRIDE = 16
+# Hidden channels of the big-object head, and the box size its box output starts at (input
+# pixels): the objects it is taught are 64 px tall and more.
+BIG_WIDTH = 64
+BIG_BOX_START_PX = 96.0
 # Input pixels per cell of the detection head's trunk (its motion path too, and the unit of its
 # box offsets); the outputs are at half that with the fine path (``ContactArchitecture.detection_fine``).
 DETECTION_STRIDE = 4
@@ -115,6 +124,7 @@ class ContactArchitecture:
     detection_blocks: int = 0                  # residual blocks in the detection head
     detection_motion: bool = False             # the detection head also reads the change from the last frame
     detection_fine: bool = False               # the detection head's outputs at 1/2, from the 1/2 decoder features
+    detection_big: bool = False                # a second head of its own for near, big objects at 1/16
 
     @property
     def detection_stride(self) -> int:
@@ -126,7 +136,7 @@ class ContactArchitecture:
                 "context": list(self.context), "detection": self.detection, "refine": self.refine,
                 "gate": self.gate, "position": self.position, "detection_context": self.detection_context,
                 "detection_blocks": self.detection_blocks, "detection_motion": self.detection_motion,
-                "detection_fine": self.detection_fine}
+                "detection_fine": self.detection_fine, "detection_big": self.detection_big}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ContactArchitecture":
@@ -134,13 +144,15 @@ class ContactArchitecture:
                    tuple(d.get("context", ())), bool(d.get("detection", False)), int(d.get("refine", 0)),
                    bool(d.get("gate", False)), bool(d.get("position", False)),
                    bool(d.get("detection_context", False)), int(d.get("detection_blocks", 0)),
-                   bool(d.get("detection_motion", False)), bool(d.get("detection_fine", False)))
+                   bool(d.get("detection_motion", False)), bool(d.get("detection_fine", False)),
+                   bool(d.get("detection_big", False)))
 
     def grows_from(self, old: "ContactArchitecture") -> bool:
         """True if this network is ``old`` plus new parts only (context blocks, a detection
         head, a refinement, the gate, the position channels, the head's context path, residual
-        blocks, motion path and fine path) — parts that start as no-ops, so ``old``'s weights carry
-        over (the fine path starts as the 1/4 outputs upsampled)."""
+        blocks, motion path and fine path, the big-object head) — parts that start as no-ops, so
+        ``old``'s weights carry over (the fine path starts as the 1/4 outputs upsampled; the
+        big-object head adds outputs of its own and changes none of the others)."""
         same_core = (self.trunk, self.widths, self.camera_channels) == (old.trunk, old.widths, old.camera_channels)
         return (same_core and self.context[:len(old.context)] == old.context
                 and (self.detection or not old.detection) and old.refine in (0, self.refine)
@@ -152,6 +164,8 @@ class ContactArchitecture:
                 and (self.detection or not self.detection_motion)
                 and (self.detection_fine or not old.detection_fine)
                 and (self.detection or not self.detection_fine)
+                and (self.detection_big or not old.detection_big)
+                and (self.detection or not self.detection_big)
                 and self.detection_blocks >= old.detection_blocks and self != old)
 
 
@@ -250,11 +264,16 @@ class DetectionHead(nn.Module):
     8 px of it. The correction's last convolution starts at zero and the outputs are 1x1
     convolutions, which commute with the bilinear upsampling: the head starts as its 1/4 outputs
     upsampled, the box offsets included (an offset to the box centre is linear across the cells,
-    so it interpolates exactly)."""
+    so it interpolates exactly).
+
+    With ``big_width`` (the context's channels), a second head of its own (``BigObjectHead``)
+    reads the 1/16 context for near, big objects, and ``forward`` returns its centre logits and
+    boxes after this head's."""
 
     def __init__(self, width: int, context_width: int = 0, blocks: int = 0, motion: bool = False,
-                 fine_width: int = 0):
+                 fine_width: int = 0, big_width: int = 0):
         super().__init__()
+        self.big = BigObjectHead(big_width, motion) if big_width else None
         self.context = None
         if context_width:
             self.context = nn.Sequential(nn.Conv2d(context_width, width, 3, padding=1), nn.ReLU(inplace=True),
@@ -284,9 +303,10 @@ class DetectionHead(nn.Module):
 
     def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
                 motion: torch.Tensor | None = None, half: torch.Tensor | None = None
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+                ) -> tuple[torch.Tensor, ...]:
         """Centre logits, and boxes (dx, dy, w, h) in input pixels; ``half``: the decoder's 1/2
-        features (the fine path)."""
+        features (the fine path). With the big-object head, its centre logits and boxes follow."""
+        big = () if self.big is None else self.big(context, motion)
         if self.context is not None:
             x = x + F.interpolate(self.context(context), size=x.shape[-2:], mode="bilinear", align_corners=False)
         if self.motion is not None:
@@ -300,6 +320,48 @@ class DetectionHead(nn.Module):
         raw = self.box(y)
         box = torch.cat([raw[:, :2] * DETECTION_STRIDE,
                          BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
+        return (self.centre(y), box, *big)
+
+
+class BigObjectHead(nn.Module):
+    """Centre heatmaps and boxes of near, big objects (64 input pixels tall and more) at 1/16, from
+    the context features (and each 1/16 cell's motion), with weights and a loss of their own.
+
+    Why a head of its own: the 1/2 head found almost no object taller than 80 px at 320x240
+    (a van, a person beside a low camera), and teaching it them harder (a core of centre cells)
+    cost it the small walkers that are three quarters of what is evaluated (docs/results.md,
+    2026-12-07, thirty-sixth session): one set of weights traded one size against the other. At
+    1/16 a van is a few cells, every one of which sees all of it, and what this head learns
+    cannot take anything from the small head (FCOS assigns objects to feature levels by size
+    for the same reason, Tian et al. 2019). Starts with the prior's empty heatmap, so a grown
+    network adds no box until trained."""
+
+    def __init__(self, context_width: int, motion: bool = False):
+        super().__init__()
+        self.motion = motion
+        cin = context_width + (MOTION_CHANNELS if motion else 0)
+        self.body = nn.Sequential(nn.Conv2d(cin, BIG_WIDTH, 3, padding=1), nn.ReLU(inplace=True),
+                                  nn.Conv2d(BIG_WIDTH, BIG_WIDTH, 3, padding=2, dilation=2), nn.ReLU(inplace=True),
+                                  nn.Conv2d(BIG_WIDTH, BIG_WIDTH, 3, padding=1), nn.ReLU(inplace=True))
+        self.centre = nn.Conv2d(BIG_WIDTH, len(DETECTION_CLASSES), 1)
+        self.box = nn.Conv2d(BIG_WIDTH, 4, 1)
+        nn.init.constant_(self.centre.bias, math.log(CENTRE_PRIOR / (1 - CENTRE_PRIOR)))
+        nn.init.zeros_(self.box.weight)
+        with torch.no_grad():
+            self.box.bias.copy_(torch.tensor([0.0, 0.0, math.log(BIG_BOX_START_PX / BOX_UNIT_PX),
+                                              math.log(BIG_BOX_START_PX / BOX_UNIT_PX)]))
+
+    def forward(self, context: torch.Tensor, motion: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Centre logits and boxes (dx, dy from the 1/16 cell's centre, w, h; input pixels).
+        ``motion``: the 1/4 motion channels (mean and largest change), pooled here to 1/16."""
+        x = context
+        if self.motion:
+            pool = BIG_STRIDE // DETECTION_STRIDE
+            x = torch.cat([x, F.avg_pool2d(motion[:, :1], pool), F.max_pool2d(motion[:, 1:], pool)], 1)
+        y = self.body(x)
+        raw = self.box(y)
+        box = torch.cat([raw[:, :2] * BIG_STRIDE, BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
         return self.centre(y), box
 
 
@@ -351,7 +413,7 @@ def level(trunk: str, cin: int, cout: int, stride: int) -> nn.Sequential:
 class ContactNet(nn.Module):
     """Encoder to 1/16 (plus context), decoder with skips back to 1/2, heads at 1/2 (refined at
     full resolution), detection at 1/4 (or 1/2, ``detection_fine``), camera from the bottleneck.
-    Returns (offsets, ground, camera[, centre, box])."""
+    Returns (offsets, ground, camera[, centre, box[, big_centre, big_box]])."""
 
     def __init__(self, arch: ContactArchitecture = ContactArchitecture()):
         super().__init__()
@@ -369,7 +431,8 @@ class ContactNet(nn.Module):
             self.decoder.append(level(arch.trunk, w[i] + w[i - 1], w[i - 1], 1))
         self.context = nn.Sequential(*(ContextBlock(w[-1], d) for d in arch.context))
         self.detection_head = (DetectionHead(w[1], w[-1] if arch.detection_context else 0, arch.detection_blocks,
-                                             arch.detection_motion, w[0] if arch.detection_fine else 0)
+                                             arch.detection_motion, w[0] if arch.detection_fine else 0,
+                                             w[-1] if arch.detection_big else 0)
                                if arch.detection else None)
         self.refinement = Refinement(arch.refine) if arch.refine else None
         self.offset_gate = OffsetGate() if arch.gate else None

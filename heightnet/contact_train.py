@@ -40,9 +40,10 @@ from heightnet.normalisation import MEAN, STD
 from heightnet.train import collate, epoch_order
 
 LOSS_FIELDS = ["total", "offset", "offset_all", "height", "si", "consistency", "ground", "camera",
-               "centre", "box", "mover_rmse_cm"]
+               "centre", "box", "big_centre", "big_box", "mover_rmse_cm"]
 WARMUP_STEPS = 200
 DETECTION_HEAD = "detection_head."
+BIG_OBJECT_HEAD = "detection_head.big."
 # Modules a grown network may add to a state (contact_model.ContactArchitecture.grows_from).
 GROWN_PARTS = ("context.", DETECTION_HEAD, "refinement.", "offset_gate.")
 # The first convolution of a network grown with input channels (the position channels).
@@ -55,7 +56,8 @@ def architecture_of(config: TrainV2Config) -> ContactArchitecture:
                                config.gate, config.position, config.detection and config.detection_context,
                                config.detection_blocks if config.detection else 0,
                                config.detection and config.detection_motion,
-                               config.detection and config.detection_fine)
+                               config.detection and config.detection_fine,
+                               config.detection and config.detection_big)
 
 
 def loss_weights_of(config: TrainV2Config) -> ContactLossWeights:
@@ -109,14 +111,15 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     ema = copy.deepcopy(net)
     step, images, warmup_from = 0, 0, 0
     measured: dict[str, Any] = {}
-    if config.head_only and not checkpoint_path.is_file():
-        raise ValueError(f"train_v2.head_only trains the detection head of a trained network, and "
-                         f"{checkpoint_path} holds none: resume a state or set train_v2.head_only = false")
+    trained = trained_prefix(config)
+    if trained and not checkpoint_path.is_file():
+        raise ValueError(f"train_v2.head_only and big_head_only train a head of a trained network, and "
+                         f"{checkpoint_path} holds none: resume a state or set both false")
     if checkpoint_path.is_file():
         if not resume:
             raise FileExistsError(f"{checkpoint_path} exists: resume it or choose another output folder")
         step, images, warmup_from = load_state(checkpoint_path, net, optimiser, config, ema)
-        measured = camera_measurements(checkpoint_path, config.head_only)
+        measured = camera_measurements(checkpoint_path, bool(trained))
         for name in ("log.csv", "curve.csv"):   # rows logged after the checkpoint are logged again
             _drop_rows_after(run_dir / name, step)
     (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2))
@@ -126,7 +129,8 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
                                detection_stride=net.arch.detection_stride,
                                appearance=config.appearance, still_pairs=config.still_pairs,
                                whole_boxes=config.whole_boxes, zoom_probability=config.zoom_crops,
-                               centre_core=config.centre_core)
+                               centre_core=config.centre_core,
+                               big_objects=config.detection and config.detection_big)
     dataset = ContactPairDataset(sequences, config.input_width, config.input_height, sampling,
                                  config.max_matches, config.seed)
     per_epoch = max(1, len(dataset) // config.batch_size)
@@ -137,10 +141,11 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
     log = _CsvLog(run_dir / "log.csv", ["step", "images", "lr", *LOSS_FIELDS, "images_per_s", "waiting_share"])
     curve = _CsvLog(run_dir / "curve.csv", None)
     net.train()
-    if config.head_only:
-        _freeze_all_but_head(net, ema)
+    if trained:
+        _freeze_all_but(net, ema, trained)
         if progress:
-            print("train_v2.head_only: the detection head trains alone; the rest keeps its averaged weights")
+            print(f"train_v2.{'big_head_only' if config.big_head_only else 'head_only'}: {trained[:-1]} "
+                  "trains alone; the rest keeps its averaged weights")
     sums: dict[str, float] = {}
     counted, tick, tick_images, waited = 0, time.time(), 0, 0.0
     bar = tqdm(total=end, initial=step, desc="train v2", disable=not progress, dynamic_ncols=True)
@@ -162,7 +167,7 @@ def train_contact(config: TrainV2Config, sequences: Sequence[ContactSequence],
             losses["total"].backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
             optimiser.step()
-            update_average(ema, net, config.ema_decay, DETECTION_HEAD if config.head_only else "")
+            update_average(ema, net, config.ema_decay, trained)
             step += 1
             images += 2 * pairs
             tick_images += 2 * pairs
@@ -373,21 +378,32 @@ def _compact(key: str, value: Any) -> Any:
     return value
 
 
-def _freeze_all_but_head(net: ContactNet, ema: ContactNet) -> None:
-    """Only the detection head learns: every other part takes the averaged weights (what is
-    exported) and keeps them, no gradients, running as at inference (BatchNorm on its running
-    statistics), so the head trains on exactly the features the exported network gives it."""
+def trained_prefix(config: TrainV2Config) -> str:
+    """The parameters a run trains, by name prefix: the big-object head alone
+    (``big_head_only``), the detection head (``head_only``), or everything ("")."""
+    if config.big_head_only:
+        return BIG_OBJECT_HEAD
+    return DETECTION_HEAD if config.head_only else ""
+
+
+def _freeze_all_but(net: ContactNet, ema: ContactNet, prefix: str) -> None:
+    """Only the parameters named ``prefix`` learn (the detection head, or its big-object head):
+    every other part takes the averaged weights (what is exported) and keeps them, no gradients,
+    running as at inference (BatchNorm on its running statistics), so the head trains on exactly
+    the features the exported network gives it."""
     if net.detection_head is None:
         raise ValueError("train_v2.head_only needs the detection head (train_v2.detection = true)")
+    if prefix == BIG_OBJECT_HEAD and net.detection_head.big is None:
+        raise ValueError("train_v2.big_head_only needs the big-object head (train_v2.detection_big = true)")
     averaged = ema.state_dict()
     with torch.no_grad():
         for name, value in net.state_dict().items():
-            if not name.startswith(DETECTION_HEAD):
+            if not name.startswith(prefix):
                 value.copy_(averaged[name])
     for name, parameter in net.named_parameters():
-        parameter.requires_grad_(name.startswith(DETECTION_HEAD))
+        parameter.requires_grad_(name.startswith(prefix))
     net.eval()
-    net.detection_head.train()
+    net.get_submodule(prefix[:-1]).train()
 
 
 def load_state(path: Path, net: torch.nn.Module, optimiser: torch.optim.Optimizer | None,

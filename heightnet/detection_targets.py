@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from heightnet.contact_model import BOX_UNIT_PX, DETECTION_CLASSES, DETECTION_STRIDE
+from heightnet.contact_model import BIG_STRIDE, BOX_UNIT_PX, DETECTION_CLASSES, DETECTION_STRIDE
 from synth.dataset import CLASS_NAMES, COARSE_CLASS
 
 # Boxes smaller than this (input pixels, height) are not asked for: a 3-pixel person is noise.
@@ -33,7 +33,7 @@ MIN_BOX_PX = 4.0
 # is not asked to guess a whole walker from a hand (evaluation does not count such objects).
 WHOLE_BOX_MIN_VISIBLE = 0.3
 # Gaussian width as a share of the box (TTFNet's alpha) and its floor in input pixels (half a
-# cell of the 1/4 head).
+# cell of the 1/4 head; half a cell of any coarser head).
 GAUSSIAN_ALPHA = 0.54
 MIN_SIGMA_PX = 2.0
 # Box targets cover the cells where the object's Gaussian reaches this (about 1.5 sigma) and
@@ -48,6 +48,11 @@ CENTRE_BOX_SHARE = 0.5
 # are centres wherever their Gaussian reaches ``core``, not at one cell: near objects, the ones
 # the head missed (80 px and more at 320x240), and no walker of the usual 10-40 px.
 CORE_MIN_PX = 64.0
+# The big-object head (``big_object_targets``) is taught objects at least BIG_MIN_PX tall (input
+# pixels); objects from BIG_IGNORE_PX up to that are neither asked of it nor held against it (a
+# 56 px car is the small head's, but a big-object peak on it is no mistake).
+BIG_MIN_PX = 64.0
+BIG_IGNORE_PX = 48.0
 
 
 @dataclass(frozen=True)
@@ -105,10 +110,12 @@ def window_boxes(instance: np.ndarray, semantic: np.ndarray, scale_x: float, sca
 def ignored_cells(parked: np.ndarray, stride: int = DETECTION_STRIDE) -> np.ndarray:
     """1 x h x w: heatmap cells (``stride`` input pixels square) that show any of a parked
     vehicle (``parked``: an input-sized boolean mask), plus DETECTION_STRIDE pixels around them,
-    where a peak of the neighbouring 1/4 cell would sit."""
+    where a peak of the neighbouring 1/4 cell would sit (no more for cells coarser than that)."""
     h, w = parked.shape[0] // stride, parked.shape[1] // stride
     cells = parked[:h * stride, :w * stride].reshape(h, stride, w, stride)
-    cells = ndimage.binary_dilation(cells.any(axis=(1, 3)), iterations=DETECTION_STRIDE // stride)
+    cells = cells.any(axis=(1, 3))
+    if DETECTION_STRIDE // stride:   # (iterations=0 would dilate until nothing changes)
+        cells = ndimage.binary_dilation(cells, iterations=DETECTION_STRIDE // stride)
     return cells[None].astype(np.float32)
 
 
@@ -146,8 +153,9 @@ def detection_targets(boxes: list[Box], width: int, height: int, ignore: np.ndar
         if not (0 <= i < cw and 0 <= j < ch):
             continue
         bw, bh = b.x1 - b.x0, b.y1 - b.y0
-        sx = max(MIN_SIGMA_PX, GAUSSIAN_ALPHA * bw / 6) / stride
-        sy = max(MIN_SIGMA_PX, GAUSSIAN_ALPHA * bh / 6) / stride
+        floor = max(MIN_SIGMA_PX, stride / 2)
+        sx = max(floor, GAUSSIAN_ALPHA * bw / 6) / stride
+        sy = max(floor, GAUSSIAN_ALPHA * bh / 6) / stride
         g = np.exp(-((gx - i) ** 2)[None, :] / (2 * sx * sx) - ((gy - j) ** 2)[:, None] / (2 * sy * sy))
         np.maximum(centre[b.cls], g, out=centre[b.cls])
         centre[b.cls, j, i] = 1.0
@@ -177,3 +185,18 @@ def detection_targets(boxes: list[Box], width: int, height: int, ignore: np.ndar
         mask[0, rows, cols] = weight[rows, cols]
     ignored[0][centres] = 0.0
     return {"centre": centre, "box": box, "box_mask": mask, "ignore": ignored}
+
+
+def big_object_targets(boxes: list[Box], width: int, height: int, parked: np.ndarray) -> dict[str, np.ndarray]:
+    """``detection_targets`` of the big-object head (cells of ``BIG_STRIDE`` input pixels): the
+    objects at least ``BIG_MIN_PX`` tall; cells where an object of ``BIG_IGNORE_PX`` up to that
+    would be a centre (its Gaussian reaching ``BOX_REGION``), like parked vehicles' (``parked``:
+    an input-sized boolean mask), are ignored. Smaller objects are background to this head: the
+    small head finds them."""
+    big = [b for b in boxes if b.y1 - b.y0 >= BIG_MIN_PX]
+    band = [b for b in boxes if BIG_IGNORE_PX <= b.y1 - b.y0 < BIG_MIN_PX]
+    ignore = ignored_cells(parked, BIG_STRIDE)
+    if band:
+        near_big = detection_targets(band, width, height, stride=BIG_STRIDE)["centre"].max(0) >= BOX_REGION
+        ignore = np.maximum(ignore, near_big[None].astype(np.float32))
+    return detection_targets(big, width, height, ignore, BIG_STRIDE)

@@ -48,9 +48,25 @@ def centre_detections(centre_logit: np.ndarray, box: np.ndarray, stride: int,
     return CentreDetections(boxes.reshape(-1, 4), cls.astype(np.int64), scores.astype(np.float32))
 
 
+def at_least_tall(detections: CentreDetections, min_height: float) -> CentreDetections:
+    """The detections whose boxes are at least ``min_height`` tall (input pixels)."""
+    tall = detections.boxes[:, 3] - detections.boxes[:, 1] >= min_height
+    return CentreDetections(detections.boxes[tall], detections.classes[tall], detections.scores[tall])
+
+
+def merged(a: CentreDetections, b: CentreDetections) -> CentreDetections:
+    """Two heads' detections as one, strongest first (what the objects stage's fragment rule
+    expects: a box is checked against the stronger ones kept before it)."""
+    scores = np.concatenate([a.scores, b.scores])
+    order = np.argsort(-scores, kind="stable")
+    return CentreDetections(np.concatenate([a.boxes, b.boxes]).reshape(-1, 4)[order],
+                            np.concatenate([a.classes, b.classes])[order], scores[order])
+
+
 def in_frame(detections: CentreDetections, class_names: tuple[str, ...] | list[str],
-             input_size: tuple[int, int], frame_size: tuple[int, int]) -> NetworkDetections:
-    """The detections in source-frame pixels, with class names.
+             input_size: tuple[int, int], frame_size: tuple[int, int], big_objects: bool = False) -> NetworkDetections:
+    """The detections in source-frame pixels, with class names (``big_objects``: they include a
+    big-object head's, ``NetworkDetections.big_objects``).
 
     The frame was squashed to the input (``HeightNetModel.preprocess``: each axis resized on its
     own, edge to edge), so each axis scales back by its own factor (``input_size`` and
@@ -59,7 +75,7 @@ def in_frame(detections: CentreDetections, class_names: tuple[str, ...] | list[s
     scale = np.array([frame_size[0] / input_size[0], frame_size[1] / input_size[1]] * 2, np.float32)
     boxes = (np.asarray(detections.boxes, np.float32).reshape(-1, 4) * scale).astype(np.float32)
     return NetworkDetections(boxes, tuple(str(class_names[int(c)]) for c in detections.classes),
-                             np.asarray(detections.scores, np.float32))
+                             np.asarray(detections.scores, np.float32), big_objects)
 
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

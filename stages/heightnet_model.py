@@ -11,7 +11,8 @@ heightnet/contact_export.py) outputs ``offsets`` and ``camera`` instead, which b
 with a camera (``stages/contact_heights.py``). Outputs are read by name and any other output is
 left alone, so a network that gains heads still loads. A v2 network whose metadata
 (``heightpipe.outputs``) lists a detection head (``centre_logit`` with its classes and stride, and
-``box``) also gives its detections, decoded here (``stages/centre_detections.py``) in frame pixels.
+``box``) also gives its detections, decoded here (``stages/centre_detections.py``) in frame pixels;
+with a big-object head (``big_centre_logit``, ``big_box``) its peaks join them, strongest first.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 
 from core.errors import ConfigError, ModelError
 from core.packets import CameraInfo, Frame, NetworkDetections
-from stages.centre_detections import centre_detections, in_frame
+from stages.centre_detections import at_least_tall, centre_detections, in_frame, merged
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
 SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
@@ -67,6 +68,10 @@ class HeightNetModelConstants:
     # Weakest peak decoded where the caller names no floor (``objects`` passes its lowest
     # threshold): weaker peaks of a trained head are background.
     detection_min_score: float = 0.1
+    # The big-object head's boxes shorter than this (input pixels) are dropped: it was taught
+    # objects 64 px tall and more (``heightnet.detection_targets.BIG_MIN_PX``), and below that its
+    # coarse boxes only compete with the small head's finer ones.
+    big_min_height_px: float = 64.0
     # ``ModelOutput.ground_at_least`` compares logits, not probabilities, except within this
     # margin of the threshold's logit, where it evaluates the sigmoid itself: float32 rounding
     # moves a probability by a few 1e-8, the margin by at least 1e-4 (thresholds 0.01-0.99).
@@ -102,6 +107,8 @@ class ModelInfo:
     """The detection head's classes, in the order of ``centre_logit``'s channels (() = no head)."""
     detection_stride: int = 0
     """Input pixels per cell of the detection head's outputs."""
+    big_detection_stride: int = 0
+    """Input pixels per cell of the big-object head's outputs (0 = the network has none)."""
     camera_spread_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     """v2: how much wider the camera heads' errors on cameras they never saw are than the spread
     they report (pitch, roll, log focal length; ``python -m heightnet.camera_fresh``); 1 where
@@ -183,6 +190,10 @@ def _read_info(path: Path, meta: dict[str, str]) -> ModelInfo:
         raise ModelError(f"{path}: unknown output units {info.output_units!r}")
     if info.contact:
         info.detection_classes, info.detection_stride = _read_detection_head(path, meta)
+        big_classes, info.big_detection_stride = _read_detection_head(path, meta, "big_centre_logit")
+        if big_classes and big_classes != info.detection_classes:
+            raise ModelError(f"{path}: the big-object head's classes {list(big_classes)} differ from the "
+                             f"detection head's {list(info.detection_classes)}")
         info.camera_spread_scale = _read_spread_scale(path, meta)
         info.camera_error_correlation = _read_error_correlation(path, meta)
     return info
@@ -218,18 +229,19 @@ def _read_error_correlation(path: Path, meta: dict[str, str]) -> tuple[tuple[flo
     return tuple(tuple(float(v) for v in row) for row in matrix)
 
 
-def _read_detection_head(path: Path, meta: dict[str, str]) -> tuple[tuple[str, ...], int]:
-    """Classes and stride of a v2 model's detection head from ``heightpipe.outputs`` ((), 0: none)."""
+def _read_detection_head(path: Path, meta: dict[str, str], name: str = "centre_logit") -> tuple[tuple[str, ...], int]:
+    """Classes and stride of a v2 model's detection head (``name``: its centre output; the
+    big-object head's is ``big_centre_logit``) from ``heightpipe.outputs`` ((), 0: none)."""
     try:
         outputs = json.loads(meta.get("heightpipe.outputs", "{}"))
-        centre = outputs.get("centre_logit")
+        centre = outputs.get(name)
         if centre is None:
             return (), 0
         classes, stride = tuple(str(c) for c in centre["classes"]), int(centre["stride"])
     except (ValueError, TypeError, KeyError, AttributeError) as exc:
         raise ModelError(f"{path} has malformed heightpipe.outputs metadata: {exc!r}") from None
     if not classes or stride <= 0:
-        raise ModelError(f"{path}: heightpipe.outputs centre_logit needs classes and a positive stride")
+        raise ModelError(f"{path}: heightpipe.outputs {name} needs classes and a positive stride")
     return classes, stride
 
 
@@ -312,6 +324,10 @@ class HeightNetModel:
             cells = [h // self.info.detection_stride, w // self.info.detection_stride]
             expected_outputs["centre_logit"] = [1, len(self.info.detection_classes), *cells]
             expected_outputs["box"] = [1, BOX_SIZE, *cells]
+        if self.info.big_detection_stride:
+            cells = [h // self.info.big_detection_stride, w // self.info.big_detection_stride]
+            expected_outputs["big_centre_logit"] = [1, len(self.info.detection_classes), *cells]
+            expected_outputs["big_box"] = [1, BOX_SIZE, *cells]
         for name, shape in expected_outputs.items():
             if name not in outputs:
                 raise ModelError(f"{self.path}: missing output {name!r} (has {sorted(outputs)})")
@@ -371,8 +387,13 @@ class HeightNetModel:
             return None
         found = centre_detections(named["centre_logit"][0], named["box"][0], self.info.detection_stride,
                                   self.detection_min_score, CONSTANTS.max_detections)
+        if self.info.big_detection_stride:
+            big = centre_detections(named["big_centre_logit"][0], named["big_box"][0],
+                                    self.info.big_detection_stride, self.detection_min_score, CONSTANTS.max_detections)
+            found = merged(found, at_least_tall(big, CONSTANTS.big_min_height_px))
         return in_frame(found, self.info.detection_classes,
-                        (self.info.input_width, self.info.input_height), frame_size)
+                        (self.info.input_width, self.info.input_height), frame_size,
+                        big_objects=bool(self.info.big_detection_stride))
 
     def to_metres(self, height: np.ndarray, camera: CameraInfo) -> np.ndarray:
         """v1 model units to metres: scale-free outputs are multiplied by the camera height

@@ -11,9 +11,9 @@ seconds (``_still``: a person standing still, whom no motion confirms). A box
 weaker still, or one that does not move, down to ``objects.continue_score``, is passed on as
 ``continues_only``: the tracker lets it carry on a track it lies on, never start one. A motion
 blob that no network box covers is no object unless it is big (``big_blob_share`` of the
-frame's height: the head misses most objects that big) or ``objects.keep_motion_blobs`` says so
-(``uncovered_blobs``). A box lying mostly inside a stronger kept box is that object's fragment
-(``fragment_share``), not a second object.
+frame's height: a network without a big-object head misses most objects that big; with one, no
+blob is) or ``objects.keep_motion_blobs`` says so (``uncovered_blobs``). A box lying mostly inside
+a stronger kept box is that object's fragment (``fragment_share``), not a second object.
 
 Each box is measured like a blob (``stages.object_measurements``): its own pixels are the box's
 pixels above the ground, its single-frame height the robust top of the height map on them. Scenery
@@ -205,10 +205,16 @@ def _inside_any(box: np.ndarray, others: list[np.ndarray]) -> float:
     return float((width * height).max() / area)
 
 
-def motion_blob_floor(config: ObjectsConfig, frame_height: int) -> float:
+def motion_blob_floor(config: ObjectsConfig, frame_height: int, found: NetworkDetections | None = None) -> float:
     """Height (frame pixels) from which a moving blob no kept box covers is an object: any with
-    ``keep_motion_blobs``, else only those the head is known to miss (``big_blob_share``)."""
-    return 0.0 if config.keep_motion_blobs else CONSTANTS.big_blob_share * frame_height
+    ``keep_motion_blobs``; none (infinity) when the network has a big-object head (``found``'s
+    ``big_objects``: it boxes the near, big objects itself); else only those a head without one is
+    known to miss (``big_blob_share``)."""
+    if config.keep_motion_blobs:
+        return 0.0
+    if found is not None and found.big_objects:
+        return float("inf")
+    return CONSTANTS.big_blob_share * frame_height
 
 
 def uncovered_blobs(blobs: list[Detection], boxes: list[Detection], min_height_px: float = 0.0) -> list[Detection]:

@@ -208,8 +208,9 @@ class ObjectExtractor:
         if self.config.still_s > 0:
             self._earlier_boxes.append((packet.frame.time_s,
                                         still_candidates(packet.network_detections, self.config, (src_w, src_h))))
-        floor = motion_blob_floor(self.config, src_h)
-        blobs = self._blob_detections(packet, masks, scale, work_size, floor) or []
+        floor = motion_blob_floor(self.config, src_h, packet.network_detections)
+        # With a big-object head no blob can be an object: none is cut out (its cost is saved).
+        blobs = (self._blob_detections(packet, masks, scale, work_size, floor) or []) if floor < np.inf else []
         # A weak box (continues_only) may find no track to carry on: it hides no blob.
         detections += uncovered_blobs(blobs, [d for d in detections if not d.continues_only], floor)
         return detections

@@ -304,6 +304,46 @@ def test_export_matches_pytorch_and_says_what_it_outputs(contact_sequences, tmp_
     assert json.loads(meta["heightpipe.outputs"])["centre_logit"]["classes"] == ["person", "cyclist", "vehicle"]
 
 
+def test_a_big_object_head_exports_and_its_peaks_join_the_small_heads_strongest_first(contact_sequences, tmp_path):
+    """The big-object head's outputs are exported and declared (stride 16); the run time decodes
+    them beside the small head's, one list, strongest first, in frame pixels."""
+    import onnxruntime as ort
+
+    from stages.heightnet_model import HeightNetModel
+
+    train_contact(small_config(tmp_path / "run", detection=True), contact_sequences, progress=False, max_steps=1)
+    train_contact(small_config(tmp_path / "run", detection=True, detection_big=True, big_head_only=True),
+                  contact_sequences, resume=True, progress=False, max_steps=1)
+    path = tmp_path / "run" / "checkpoint.pt"
+    state = torch.load(path, weights_only=False)
+    big = "detection_head.big."
+    for name in ("centre.weight", "box.weight"):
+        state["ema"][big + name].zero_()
+    state["ema"][big + "centre.bias"].copy_(torch.tensor([-20.0, -20.0, 5.0]))   # sure of a vehicle everywhere
+    state["ema"][big + "box.bias"].copy_(torch.tensor([0.0, 0.0, math.log(48 / 16), math.log(64 / 16)]))
+    state["ema"]["detection_head.centre.bias"].fill_(-20.0)                      # the small head sees nothing
+    torch.save(state, path)
+    report = export_contact(path, tmp_path / "big.onnx")
+    assert max(report["big_centre_logit"], report["big_box"]) < 1e-3
+    session = ort.InferenceSession(str(tmp_path / "big.onnx"), providers=["CPUExecutionProvider"])
+    assert [o.name for o in session.get_outputs()][-2:] == ["big_centre_logit", "big_box"]
+    outputs = json.loads(session.get_modelmeta().custom_metadata_map["heightpipe.outputs"])
+    assert outputs["big_centre_logit"] == {"classes": ["person", "cyclist", "vehicle"], "stride": 16}
+    model = HeightNetModel(tmp_path / "big.onnx")
+    assert (model.info.detection_stride, model.info.big_detection_stride) == (2, 16)
+    found = model.run(np.zeros((128, 256, 3), np.uint8)).detections   # the 64x64 input, 4 x 4 big cells
+    assert len(found) == 16 and set(found.classes) == {"vehicle"} and found.big_objects
+    assert np.all(np.diff(found.scores) <= 0)
+    widths, heights = found.boxes[:, 2] - found.boxes[:, 0], found.boxes[:, 3] - found.boxes[:, 1]
+    assert np.allclose(widths, 48 * 4) and np.allclose(heights, 64 * 2)           # frame = 4x, 2x the input
+    assert np.allclose(np.sort(np.unique((found.boxes[:, 0] + found.boxes[:, 2]) / 2)), [32, 96, 160, 224])
+    # Boxes shorter than what the head was taught (``big_min_height_px``, input pixels) are dropped.
+    state["ema"][big + "box.bias"][3] = math.log(40 / 16)
+    torch.save(state, path)
+    export_contact(path, tmp_path / "short.onnx")
+    assert len(HeightNetModel(tmp_path / "short.onnx").run(np.zeros((128, 256, 3), np.uint8)).detections) == 0
+
+
 def test_a_grown_network_starts_as_the_state_it_grew_from(contact_sequences, tmp_path):
     """Context blocks, the detection head, the refinement, the gate and the position channels
     start as no-ops: resuming a smaller network's state with them gives the same offsets, then
@@ -356,6 +396,40 @@ def test_head_only_training_moves_the_head_and_nothing_else(contact_sequences, t
     with pytest.raises(ValueError, match="head_only"):
         train_contact(small_config(tmp_path / "fresh", head_only=True), contact_sequences, progress=False,
                       max_steps=1)
+
+
+def test_big_head_only_training_grows_the_big_object_head_and_moves_nothing_else(contact_sequences, tmp_path):
+    """``big_head_only`` grows the big-object head onto a trained state and trains it alone: the
+    small head too keeps its weights bit for bit (what it finds cannot change), and the grown
+    network's small-head outputs are the old network's."""
+    first = train_contact(small_config(tmp_path / "run", detection=True), contact_sequences, progress=False,
+                          max_steps=2)
+    start = {k: v.clone() for k, v in first["ema"].state_dict().items()}
+    grown = small_config(tmp_path / "run", detection=True, detection_big=True, big_head_only=True)
+    after = train_contact(grown, contact_sequences, resume=True, progress=False, max_steps=2)
+    for name, value in after["ema"].state_dict().items():
+        if name.startswith("detection_head.big."):
+            continue
+        assert torch.equal(value, start[name]), name
+        assert torch.equal(after["net"].state_dict()[name], start[name]), name
+    big = [k for k in after["net"].state_dict() if k.startswith("detection_head.big.")]
+    fresh = ContactNet(architecture_of(grown)).state_dict()
+    assert big and any(not torch.equal(after["net"].state_dict()[k], fresh[k]) for k in big)
+    image = torch.randn(1, 3, 64, 64, generator=torch.Generator().manual_seed(0))
+    first["ema"].eval()
+    after["ema"].eval()
+    with torch.no_grad():
+        old, new = first["ema"](image), after["ema"](image)
+    assert len(old) == 5 and len(new) == 7
+    for a, b in zip(old, new):
+        assert torch.equal(a, b)
+    assert new[5].shape == (1, 3, 4, 4) and new[6].shape == (1, 4, 4, 4)
+    rows = list(csv.DictReader((tmp_path / "run" / "log.csv").open()))
+    assert rows[-1]["big_centre"] not in ("", "nan")
+    train_contact(small_config(tmp_path / "plain", detection=True), contact_sequences, progress=False, max_steps=1)
+    with pytest.raises(ValueError, match="needs the big-object head"):
+        train_contact(small_config(tmp_path / "plain", detection=True, big_head_only=True), contact_sequences,
+                      resume=True, progress=False, max_steps=1)
 
 
 def test_each_image_of_a_pair_gets_the_other_as_its_frame_before():
@@ -530,6 +604,30 @@ def test_box_targets_cover_the_cells_around_each_centre_and_point_to_its_box():
     assert owner[(6, 9)] == (32, 64) and (6, 7) in owner and (5, 8) in owner
     assert owner[(7, 12)] == (48, 8) and owner[(7, 11)] == (44, 8)   # centres are their own
     assert len(owner) > 3 * 5
+
+
+def test_the_big_object_head_is_taught_big_objects_ignores_the_band_below_and_calls_small_ones_background():
+    """At 1/16: a 120 px van is a centre with its box; a 56 px walker (between ``BIG_IGNORE_PX``
+    and ``BIG_MIN_PX``) is neither asked for nor held against the head; a 30 px walker and a parked
+    car's cells are background and ignored respectively, as for the small head."""
+    from heightnet.contact_model import BIG_STRIDE, BOX_UNIT_PX
+    from heightnet.detection_targets import BIG_IGNORE_PX, BIG_MIN_PX, Box, big_object_targets
+
+    van = Box(2, 100.0, 60.0, 220.0, 180.0)      # centre (160, 120): cell (7, 10)
+    band = Box(0, 250.0, 100.0, 270.0, 156.0)     # 56 px: centre (260, 128), cell (8, 16)
+    small = Box(0, 20.0, 20.0, 30.0, 50.0)        # 30 px: cell (2, 1)
+    assert BIG_IGNORE_PX <= 56 < BIG_MIN_PX <= 120 and 30 < BIG_IGNORE_PX
+    parked = np.zeros((240, 320), bool)
+    parked[200:230, 20:60] = True                 # cells (12-14) x (1-3)
+    t = big_object_targets([van, band, small], 320, 240, parked)
+    assert t["centre"].shape == (3, 240 // BIG_STRIDE, 320 // BIG_STRIDE)
+    assert t["centre"][2, 7, 10] == 1.0 and (t["centre"] == 1.0).sum() == 1
+    assert t["centre"][0].max() == 0.0            # neither walker is asked for
+    assert t["ignore"][0, 8, 16] == 1.0 and t["ignore"][0, 1, 2] == 0.0
+    assert t["ignore"][0, 12:15, 1:4].all() and t["ignore"][0, 7, 10] == 0.0
+    assert np.allclose(t["box"][:, 7, 10], [160 - 10.5 * BIG_STRIDE, 120 - 7.5 * BIG_STRIDE,
+                                            math.log(120 / BOX_UNIT_PX), math.log(120 / BOX_UNIT_PX)])
+    assert math.isclose(float(t["box_mask"].sum()), 1.0, rel_tol=1e-5)
 
 
 def test_a_centre_core_marks_big_objects_over_several_cells_and_small_ones_at_one():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.centre_detections import box_iou, centre_detections
+from stages.centre_detections import CentreDetections, at_least_tall, box_iou, centre_detections, merged
 
 
 def logit(p: float) -> float:
@@ -47,3 +47,17 @@ def test_box_iou():
     a = np.array([[0, 0, 10, 10], [20, 20, 30, 30]], np.float32)
     b = np.array([[5, 0, 15, 10]], np.float32)
     np.testing.assert_allclose(box_iou(a, b), [[50 / 150], [0.0]], atol=1e-6)
+
+
+def test_two_heads_merge_strongest_first_and_short_boxes_can_be_dropped():
+    small = CentreDetections(np.array([[0, 0, 10, 20], [5, 5, 15, 45]], np.float32), np.array([0, 0]),
+                             np.array([0.9, 0.4], np.float32))
+    big = CentreDetections(np.array([[0, 0, 80, 100], [0, 0, 40, 30]], np.float32), np.array([2, 2]),
+                           np.array([0.6, 0.95], np.float32))
+    both = merged(small, big)
+    assert both.scores.tolist() == pytest.approx([0.95, 0.9, 0.6, 0.4])
+    assert both.classes.tolist() == [2, 0, 2, 0]
+    assert both.boxes[0].tolist() == [0, 0, 40, 30]
+    tall = at_least_tall(big, 64)
+    assert len(tall) == 1 and tall.boxes[0].tolist() == [0, 0, 80, 100]
+    assert len(merged(small, at_least_tall(big, 200))) == 2

@@ -18,7 +18,8 @@ from stages.geometry import GeometryMeasurer
 from stages.height_inference import HeightEstimator
 from stages.heightnet_model import HeightNetModel
 from stages.merged_blobs import split_by_predictions
-from stages.network_objects import check_classes, class_thresholds, min_score, motion_ends, network_objects
+from stages.network_objects import (check_classes, class_thresholds, min_score, motion_blob_floor, motion_ends,
+                                    network_objects)
 from stages.object_extraction import ObjectExtractor
 
 WIDTH, HEIGHT = 320, 240
@@ -222,6 +223,18 @@ def test_a_big_motion_blob_without_a_box_is_an_object_as_the_head_misses_big_one
     at_top = dataclasses.replace(NETWORK_MODE, vehicle_height_percentile=100.0)
     big = run(at_top, found(), walker_tall=tall).detections
     assert [(d.cls_source, round(d.height(), 1), d.box[3]) for d in big] == ([("objects", 1.8, tall)] if kept else [])
+
+
+def test_with_a_big_object_head_no_big_motion_blob_stands_in_for_its_boxes():
+    """A network with a head of its own for big objects boxes them itself: a big blob without a
+    box is then no object (it would be one of the head's misses, not a stand-in for a known gap);
+    ``keep_motion_blobs`` still keeps every blob."""
+    no_box = dataclasses.replace(found(), big_objects=True)
+    assert run(NETWORK_MODE, no_box, walker_tall=100).detections == []
+    kept = run(dataclasses.replace(NETWORK_MODE, keep_motion_blobs=True), no_box, walker_tall=100).detections
+    assert [d.cls_source for d in kept] == ["objects"]
+    assert motion_blob_floor(NETWORK_MODE, 240, no_box) == float("inf")
+    assert motion_blob_floor(NETWORK_MODE, 240, found()) == pytest.approx(60.0)
 
 
 def test_a_big_motion_blob_reads_at_the_vehicles_percentile_and_kept_blobs_at_the_top():
