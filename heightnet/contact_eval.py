@@ -30,7 +30,7 @@ import torch
 
 from stages.camera_heads import camera_from_heads
 from stages.ground_contact import PinholeCamera, heights_from_offsets
-from stages.centre_detections import CentreDetections, at_least_tall, box_iou, centre_detections, merged
+from stages.centre_detections import CentreDetections, box_iou, centre_detections, with_big_objects
 from stages.heightnet_model import CONSTANTS as MODEL_CONSTANTS
 from heightnet.contact_data import CLASS_GROUPS, ContactSequence, camera_channels, camera_targets
 from heightnet.contact_model import BIG_STRIDE, DETECTION_CLASSES
@@ -86,8 +86,8 @@ def predict(net: torch.nn.Module, rgb: np.ndarray, width: int, height: int,
         found = centre_detections(centre, box, arch.detection_stride, DETECTION_SCORE)
         if len(detection) == 4:   # the big-object head's peaks join the small head's, as at run time
             big_centre, big_box = (t[0].numpy() for t in detection[2:])
-            found = merged(found, at_least_tall(centre_detections(big_centre, big_box, BIG_STRIDE, DETECTION_SCORE),
-                                                MODEL_CONSTANTS.big_min_height_px))
+            found = with_big_objects(found, big_centre, big_box, BIG_STRIDE, DETECTION_SCORE,
+                                     MODEL_CONSTANTS.big_min_height_px)
     return offsets[0].permute(1, 2, 0).numpy(), cam[0].numpy(), found
 
 

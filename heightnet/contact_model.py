@@ -317,10 +317,7 @@ class DetectionHead(nn.Module):
         if self.fine is not None:
             y = F.interpolate(y, size=half.shape[-2:], mode="bilinear", align_corners=False)
             y = y + self.fine(torch.cat([y, half], 1))
-        raw = self.box(y)
-        box = torch.cat([raw[:, :2] * DETECTION_STRIDE,
-                         BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
-        return (self.centre(y), box, *big)
+        return (self.centre(y), decoded_boxes(self.box(y), DETECTION_STRIDE), *big)
 
 
 class BigObjectHead(nn.Module):
@@ -360,9 +357,13 @@ class BigObjectHead(nn.Module):
             pool = BIG_STRIDE // DETECTION_STRIDE
             x = torch.cat([x, F.avg_pool2d(motion[:, :1], pool), F.max_pool2d(motion[:, 1:], pool)], 1)
         y = self.body(x)
-        raw = self.box(y)
-        box = torch.cat([raw[:, :2] * BIG_STRIDE, BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
-        return self.centre(y), box
+        return self.centre(y), decoded_boxes(self.box(y), BIG_STRIDE)
+
+
+def decoded_boxes(raw: torch.Tensor, unit: int) -> torch.Tensor:
+    """A box convolution's raw output as boxes: the centre's offset in units of ``unit`` input
+    pixels (the head's trunk cell) and the size as log(size / BOX_UNIT_PX), both to input pixels."""
+    return torch.cat([raw[:, :2] * unit, BOX_UNIT_PX * torch.exp(raw[:, 2:].clamp(max=6.0))], 1)
 
 
 def motion_channels(image: torch.Tensor, previous: torch.Tensor | None) -> torch.Tensor:

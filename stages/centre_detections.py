@@ -63,6 +63,15 @@ def merged(a: CentreDetections, b: CentreDetections) -> CentreDetections:
                             np.concatenate([a.classes, b.classes])[order], scores[order])
 
 
+def with_big_objects(found: CentreDetections, big_centre_logit: np.ndarray, big_box: np.ndarray, stride: int,
+                     threshold: float | np.ndarray, min_height: float, max_objects: int = 100) -> CentreDetections:
+    """``found`` (the detection head's peaks) joined by a big-object head's (its outputs at
+    ``stride``), strongest first, less its boxes under ``min_height`` input pixels: below the
+    objects it was taught its coarse boxes only compete with the finer ones."""
+    big = centre_detections(big_centre_logit, big_box, stride, threshold, max_objects)
+    return merged(found, at_least_tall(big, min_height))
+
+
 def in_frame(detections: CentreDetections, class_names: tuple[str, ...] | list[str],
              input_size: tuple[int, int], frame_size: tuple[int, int], big_objects: bool = False) -> NetworkDetections:
     """The detections in source-frame pixels, with class names (``big_objects``: they include a

@@ -30,7 +30,7 @@ import numpy as np
 
 from core.errors import ConfigError, ModelError
 from core.packets import CameraInfo, Frame, NetworkDetections
-from stages.centre_detections import at_least_tall, centre_detections, in_frame, merged
+from stages.centre_detections import centre_detections, in_frame, with_big_objects
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
 SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
@@ -388,9 +388,9 @@ class HeightNetModel:
         found = centre_detections(named["centre_logit"][0], named["box"][0], self.info.detection_stride,
                                   self.detection_min_score, CONSTANTS.max_detections)
         if self.info.big_detection_stride:
-            big = centre_detections(named["big_centre_logit"][0], named["big_box"][0],
-                                    self.info.big_detection_stride, self.detection_min_score, CONSTANTS.max_detections)
-            found = merged(found, at_least_tall(big, CONSTANTS.big_min_height_px))
+            found = with_big_objects(found, named["big_centre_logit"][0], named["big_box"][0],
+                                     self.info.big_detection_stride, self.detection_min_score,
+                                     CONSTANTS.big_min_height_px, CONSTANTS.max_detections)
         return in_frame(found, self.info.detection_classes,
                         (self.info.input_width, self.info.input_height), frame_size,
                         big_objects=bool(self.info.big_detection_stride))
