@@ -64,13 +64,15 @@ class CpuClock:
         return (self.last - self.first) * 1000.0 / (self.calls - 1)
 
 
-def decode_fps(clip: Path, frames: int) -> float:
+def decode_fps(clip: Path, frames: int) -> float | None:
+    """OpenCV's FFmpeg decode rate over the clip's first ``frames``; None where it reads none
+    (an image folder, a source only the pipeline's own capture opens)."""
     capture = cv2.VideoCapture(str(clip), cv2.CAP_FFMPEG)
     count, start = 0, time.perf_counter()
     while count < frames and capture.read()[0]:
         count += 1
     capture.release()
-    return count / (time.perf_counter() - start)
+    return count / (time.perf_counter() - start) if count else None
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -105,16 +107,18 @@ def main(argv: list[str] | None = None) -> None:
             summary = run_pipeline(str(clip), config, Path(tmp) / "bench", on_frame=cpu.on_frame)
         except HeightpipeError as exc:
             raise SystemExit(f"pipeline_bench: {exc}") from None
-    ratio = summary.fps / decode
+    if summary.frames == 0 or summary.fps <= 0:
+        raise SystemExit(f"pipeline_bench: no frame of {clip} was processed")
     cpu_ms = cpu.ms_per_frame()
 
     print(f"clip: {clip} ({summary.frames} frames)")
     print()
     print("| measure | value |")
     print("|---|---|")
-    print(f"| OpenCV decode only | {decode:.1f} frames/s |")
+    decoded = "not measured (OpenCV reads no frame of it as one video)" if decode is None else f"{decode:.1f} frames/s"
+    print(f"| OpenCV decode only | {decoded} |")
     print(f"| heightpipe run, all sinks on | {summary.fps:.1f} frames/s |")
-    print(f"| ratio run / decode | {ratio:.3f} |")
+    print(f"| ratio run / decode | {'-' if decode is None else f'{summary.fps / decode:.3f}'} |")
     print(f"| CPU per frame, all threads | {cpu_ms:.1f} ms |")
     print(f"| ceiling on {cores()} cores (cores / CPU per frame) | {1000.0 * cores() / cpu_ms:.1f} frames/s |")
     print(f"| target | >= {TARGET_FPS:.0f} frames/s: {'met' if summary.fps >= TARGET_FPS else 'NOT met'} |")

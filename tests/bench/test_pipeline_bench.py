@@ -32,3 +32,21 @@ def test_a_run_that_cannot_start_is_one_line_not_a_traceback(tmp_path):
     assert message.startswith("pipeline_bench: ") and "camera" in message and "\n" not in message
     with pytest.raises(SystemExit, match="pipeline_bench: .*no_such"):
         main(["--frames", "2", "--set", "no_such.key=1"])
+
+
+def test_a_source_opencv_cannot_decode_as_one_video_gets_the_table_without_a_decode_rate(tmp_path, capsys):
+    """An image folder runs through the pipeline's own capture; OpenCV's decode-only loop reads
+    none of it, so the table says the rate was not measured instead of dividing by zero."""
+    import cv2
+    import numpy as np
+
+    from bench.pipeline_bench import main
+
+    rng = np.random.default_rng(0)
+    for index in range(3):
+        cv2.imwrite(str(tmp_path / f"{index:03d}.png"), rng.integers(0, 255, (120, 160, 3), dtype=np.uint8))
+    main([str(tmp_path), "--frames", "3"])
+    table = capsys.readouterr().out
+    assert "| OpenCV decode only | not measured" in table
+    assert "| ratio run / decode | - |" in table
+    assert "clip: " in table and "(3 frames)" in table
