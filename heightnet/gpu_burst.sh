@@ -8,7 +8,7 @@
 # BURST_SIZES replaces the rendered sizes (default 640x480,640x360,320x240); PYTHON the
 # interpreter (default python3, the GPU machine's).
 # Rendering grows the set BURST_CHUNK (default 400) sequences at a time (finished sequences are
-# kept) until RENDER_SECONDS (default 160) have passed; the rest of SECONDS trains.
+# kept; the first chunk always) until RENDER_SECONDS (default 160) have passed; the rest of SECONDS trains.
 # The batch is 8x the 2-core machine's (32 pairs); the learning rate is doubled (lr 0.002 before
 # the config's drops: 1.8e-4 for the network, 10x that for the head), about the square root of 8.
 set -euo pipefail
@@ -28,8 +28,10 @@ mkdir -p "$out"
 cp heightnet/state/v2/checkpoint.pt heightnet/state/v2/log.csv heightnet/state/v2/curve.csv "$out"/
 # 320x240 beside 640x480 and 640x360: the held-out 320x240 renders are what the head misread
 # (whether they cost the first burst its real-clip coverage is open: docs/results.md, 2026-12-04).
+# The first chunk is always rendered: without it there is nothing to train on (bash counts SECONDS
+# in whole seconds, so a 1 s render budget could be spent before the loop began).
 for (( sequences = chunk; sequences <= 8 * chunk; sequences += chunk )); do
-    (( SECONDS - start < render_seconds )) || break
+    (( sequences == chunk || SECONDS - start < render_seconds )) || break
     say "rendering up to $sequences training cameras on $cores cores"
     hp synth --out data/burst_train --sequences "$sequences" --frames 2 --size "$sizes" \
         --seed 21 --split train --workers "$cores" --no-progress
