@@ -25,6 +25,7 @@ import numpy as np
 from scipy import ndimage
 
 from heightnet.contact_model import BIG_STRIDE, BOX_UNIT_PX, DETECTION_CLASSES, DETECTION_STRIDE
+from stages.heightnet_model import CONSTANTS as MODEL_CONSTANTS
 from synth.dataset import CLASS_NAMES, COARSE_CLASS
 
 # Boxes smaller than this (input pixels, height) are not asked for: a 3-pixel person is noise.
@@ -50,8 +51,9 @@ CENTRE_BOX_SHARE = 0.5
 CORE_MIN_PX = 64.0
 # The big-object head (``big_object_targets``) is taught objects at least BIG_MIN_PX tall (input
 # pixels); objects from BIG_IGNORE_PX up to that are neither asked of it nor held against it (a
-# 56 px car is the small head's, but a big-object peak on it is no mistake).
-BIG_MIN_PX = 64.0
+# 56 px car is the small head's, but a big-object peak on it is no mistake). The run time drops
+# the head's boxes shorter than what it was taught: one number for both.
+BIG_MIN_PX = MODEL_CONSTANTS.big_min_height_px
 BIG_IGNORE_PX = 48.0
 
 

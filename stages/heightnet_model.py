@@ -69,8 +69,8 @@ class HeightNetModelConstants:
     # threshold): weaker peaks of a trained head are background.
     detection_min_score: float = 0.1
     # The big-object head's boxes shorter than this (input pixels) are dropped: it was taught
-    # objects 64 px tall and more (``heightnet.detection_targets.BIG_MIN_PX``), and below that its
-    # coarse boxes only compete with the small head's finer ones.
+    # objects this tall and more (``heightnet.detection_targets.BIG_MIN_PX`` is this number), and
+    # below that its coarse boxes only compete with the small head's finer ones.
     big_min_height_px: float = 64.0
     # ``ModelOutput.ground_at_least`` compares logits, not probabilities, except within this
     # margin of the threshold's logit, where it evaluates the sigmoid itself: float32 rounding
