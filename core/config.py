@@ -76,6 +76,11 @@ class HeightConfig:
     walkers) at about three times the network's cost (72 ms against 23 at 640, two threads): for
     archives and big frames, not for real time. Needs a v2 export with a free input size (the
     shipped one has)."""
+    mirror: bool = False
+    """Also run the network on the mirror image of each frame and average the two reads
+    (``stages/mirrored_views.py``): boxes, scores, the height map and the camera heads. Twice the
+    network's time a frame, for archives rather than real time (docs/results.md, 2026-12-07
+    thirty-ninth session)."""
     vertical_edges: bool = False
     """v2 told only the camera height: let the scene's straight lines (walls' and poles' vertical
     edges, parallel kerbs and markings) sharpen the camera heads' pitch, roll and focal length

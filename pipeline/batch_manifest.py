@@ -64,6 +64,8 @@ def config_fingerprint(config: Config) -> str:
     if not config.height.input_width:
         # The trained input size, as before the key existed: archives made then are not redone.
         relevant["height"].pop("input_width")
+    if not config.height.mirror:
+        relevant["height"].pop("mirror")
     relevant["output"].pop("progress")
     relevant["output"].pop("directory")
     # Keys that came later and change nothing where they are not read: archives made before them

@@ -139,7 +139,7 @@ def scene_camera(args: argparse.Namespace, config) -> int:
     if args.out:
         raise ConfigError("--out writes the people fit's calibration JSON; with --camera-height save the "
                           "[camera] snippet instead: heightpipe calibrate SOURCE --camera-height M > camera.toml")
-    model = HeightNetModel(config.height.model or "v2", config.height.threads)
+    model = HeightNetModel(config.height.model or "v2", config.height.threads, mirror=config.height.mirror)
     if not model.info.contact:
         raise ConfigError(f"calibrate --camera-height needs a HeightNet v2 model (camera heads); "
                           f"{model.path} is a v1 model")

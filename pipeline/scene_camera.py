@@ -90,7 +90,7 @@ def pose_from_scene(config: Config, images: list[np.ndarray], model=None,
     if not images or not knows_height_only(config):
         return config, None
     if model is None or not model.info.contact:
-        model = HeightNetModel(HEIGHT_ONLY_MODEL, config.height.threads)
+        model = HeightNetModel(HEIGHT_ONLY_MODEL, config.height.threads, mirror=config.height.mirror)
     height, width = images[0].shape[:2]
     # A lens-only file's focal length is used as given (and its distortion removed: read_scene).
     used, reader = read_scene(model, images, camera_for_run(config.camera, width, height))

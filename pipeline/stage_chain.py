@@ -74,7 +74,7 @@ def load_height_model(config: Config) -> HeightNetModel:
     from stages.network_objects import check_classes, min_score
 
     model = HeightNetModel(config.height.model, config.height.threads, min_score(config.objects),
-                           config.height.input_width)
+                           config.height.input_width, mirror=config.height.mirror)
     if config.objects.source == "network":
         if not model.info.detection:
             raise ConfigError(f"objects.source = 'network' needs a height model with a detection head "

@@ -31,6 +31,7 @@ import numpy as np
 from core.errors import ConfigError, ModelError
 from core.packets import CameraInfo, Frame, NetworkDetections
 from stages.centre_detections import centre_detections, in_frame, with_big_objects
+from stages.mirrored_views import averaged_with_mirror, mirror_input, mirror_problem, unmirrored_outputs
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
 SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
@@ -262,10 +263,14 @@ class HeightNetModel:
         the trained aspect, both rounded to ``CONSTANTS.size_multiple``. Needs an export with a
         free input size (``heightpipe export`` writes one); ONNX Runtime then fixes the size when
         the session is built, so it runs as fast as a fixed-size export.
+    mirror : bool
+        Read every image twice, as it is and mirrored, and average the two reads (twice the
+        network's time; ``stages/mirrored_views.py`` says why).
     """
 
     def __init__(self, model_path: str | Path = "", threads: int = 0,
-                 detection_min_score: float = CONSTANTS.detection_min_score, input_width: int = 0):
+                 detection_min_score: float = CONSTANTS.detection_min_score, input_width: int = 0,
+                 mirror: bool = False):
         path = model_file(model_path)
         if not path.is_file():
             raise ModelError(f"model file not found: {path}")
@@ -292,6 +297,10 @@ class HeightNetModel:
         elif self.threads != first_threads:
             self.session = _session(path, self.threads)
         self._check_signature()
+        problem = mirror_problem(self.info.input_width, (self.info.detection_stride, self.info.big_detection_stride))
+        if mirror and problem:
+            raise ConfigError(problem)
+        self.mirror = mirror
         self._mean = np.array(self.info.mean, np.float32) * 255.0
         self._inv_std = 1.0 / (np.array(self.info.std, np.float32) * 255.0)
         self._cached_index: int | None = None
@@ -369,10 +378,10 @@ class HeightNetModel:
     def _outputs(self, tensor: np.ndarray, previous: np.ndarray | None, frame_shape: tuple[int, int]) -> ModelOutput:
         """The network on one prepared input (``previous``: the frame before, None = no change),
         its outputs at ``frame_shape`` (rows, columns)."""
-        feed = {self.input_name: tensor}
-        if self.takes_previous:
-            feed[PREVIOUS_INPUT] = tensor if previous is None else previous
-        named = dict(zip(self.output_names, self.session.run(self.output_names, feed)))
+        named = self._run(tensor, previous)
+        if self.mirror:
+            mirror_read = self._run(mirror_input(tensor), None if previous is None else mirror_input(previous))
+            named = averaged_with_mirror(named, unmirrored_outputs(mirror_read))
         h, w = frame_shape
         logit_full = cv2.resize(named["ground_logit"][0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
         if self.info.contact:
@@ -380,6 +389,13 @@ class HeightNetModel:
                                camera=named["camera"][0], detections=self._detections(named, (w, h)))
         height_full = cv2.resize(named["height"][0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
         return ModelOutput(np.maximum(height_full, 0.0, out=height_full), logit_full)
+
+    def _run(self, tensor: np.ndarray, previous: np.ndarray | None) -> dict[str, np.ndarray]:
+        """The session's outputs by name for one prepared input (and the frame before)."""
+        feed = {self.input_name: tensor}
+        if self.takes_previous:
+            feed[PREVIOUS_INPUT] = tensor if previous is None else previous
+        return dict(zip(self.output_names, self.session.run(self.output_names, feed)))
 
     def _detections(self, named: dict[str, np.ndarray], frame_size: tuple[int, int]) -> NetworkDetections | None:
         """The detection head's peaks in frame pixels (None without a head)."""

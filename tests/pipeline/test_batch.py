@@ -326,6 +326,9 @@ def test_what_a_rerun_redoes(tmp_path):
     wider = Config()
     wider.height.input_width = 640
     assert reason("/a.mp4", fp=config_fingerprint(wider)) == "config changed"
+    mirrored = Config()
+    mirrored.height.mirror = True
+    assert reason("/a.mp4", fp=config_fingerprint(mirrored)) == "config changed"
     # Network-mode keys are not read in blobs mode (archives made before they existed stay done) ...
     blobs = Config()
     blobs.objects.score_person, blobs.objects.keep_motion_blobs = 0.9, True
