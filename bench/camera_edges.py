@@ -1,6 +1,6 @@
 """The camera a run told only its height ends with: the heads alone, and sharpened by the scene's lines.
 
-    python -m bench.camera_edges DATA [DATA ...] [--model v2] [--frames 0 | --as-run] [--per-sequence]
+    python -m bench.camera_edges DATA [DATA ...] [--model v2] [--frames 0 | --as-run] [--per-sequence] [--mirror]
 
 For each generator sequence (every frame, as ``heightpipe run --camera-height H`` sees it), the
 v2 network's camera heads are averaged as a run averages them (``stages/contact_heights.py``),
@@ -15,6 +15,7 @@ often the truth lies within the reported ±1 std (68 % if honest). One table of 
 dataset; ``--per-sequence`` prints each sequence too. ``--as-run`` reads the frames a file run
 told only the height reads before its first frame (``[camera] read_scene_frames`` spread over
 ``read_scene_s``: all 60 frames of a generator sequence at 10 frames/s) instead of the first ``--frames``.
+``--mirror`` reads each frame with its mirror image, as a run with ``height.mirror`` does.
 """
 
 from __future__ import annotations
@@ -130,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--as-run", action="store_true",
                         help="the frames a run told only the height reads its camera from (not the first --frames)")
     parser.add_argument("--per-sequence", action="store_true")
+    parser.add_argument("--mirror", action="store_true",
+                        help="each frame read with its mirror image, averaged (a run's height.mirror)")
     args = parser.parse_args(argv)
 
     from core.errors import HeightpipeError
@@ -138,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     from synth.dataset import list_sequences
 
     try:
-        model = HeightNetModel(args.model)
+        model = HeightNetModel(args.model, mirror=args.mirror)
     except HeightpipeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

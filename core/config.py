@@ -78,9 +78,9 @@ class HeightConfig:
     shipped one has)."""
     mirror: bool = False
     """Also run the network on the mirror image of each frame and average the two reads
-    (``stages/mirrored_views.py``): boxes, scores, the height map and the camera heads. Twice the
-    network's time a frame, for archives rather than real time (docs/results.md, 2026-12-07
-    thirty-ninth session)."""
+    (``stages/mirrored_views.py``): boxes, scores, the height map and the camera heads. A second
+    pass of the network a frame, for archives rather than real time; HeightNet v2 only (v1's
+    mirrored reads measured real people worse). docs/results.md, 2026-12-07 thirty-ninth session."""
     vertical_edges: bool = False
     """v2 told only the camera height: let the scene's straight lines (walls' and poles' vertical
     edges, parallel kerbs and markings) sharpen the camera heads' pitch, roll and focal length

@@ -264,8 +264,8 @@ class HeightNetModel:
         free input size (``heightpipe export`` writes one); ONNX Runtime then fixes the size when
         the session is built, so it runs as fast as a fixed-size export.
     mirror : bool
-        Read every image twice, as it is and mirrored, and average the two reads (twice the
-        network's time; ``stages/mirrored_views.py`` says why).
+        Read every image twice, as it is and mirrored, and average the two reads (a second pass
+        of the network; ``stages/mirrored_views.py`` says why). v2 models only.
     """
 
     def __init__(self, model_path: str | Path = "", threads: int = 0,
@@ -297,6 +297,9 @@ class HeightNetModel:
         elif self.threads != first_threads:
             self.session = _session(path, self.threads)
         self._check_signature()
+        if mirror and not self.info.contact:
+            raise ConfigError(f"height.mirror needs a HeightNet v2 model (height.model = \"v2\"); {path} is a v1 "
+                              "model, whose mirrored reads measured real people worse (docs/results.md)")
         problem = mirror_problem(self.info.input_width, (self.info.detection_stride, self.info.big_detection_stride))
         if mirror and problem:
             raise ConfigError(problem)

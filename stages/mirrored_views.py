@@ -6,11 +6,13 @@ in every frame (docs/results.md, 2026-12-06 thirty-third session). Run on the mi
 the same object is read by the same weights from another view; its errors there are partly
 independent, and the average of the two reads is nearer the truth (test-time augmentation, as
 detectors commonly evaluate with horizontal flips). It costs one more pass of the network a frame,
-so it is opt-in (``height.mirror``): for archives, where accuracy matters more than frames/s.
+so it is opt-in (``height.mirror``): for archives, where accuracy matters more than frames/s. It is
+for HeightNet v2 only: v1's height maps averaged so read Oxford's real people worse (8.9 -> 20.5
+cm; docs/results.md, 2026-12-07 thirty-ninth session).
 
 Every output is mirrored back before it is averaged, each by what it means:
 
-* maps (ground logit, v1 heights) are flipped left to right;
+* the ground logit is flipped left to right;
 * v2's offsets point to the ground-contact point: flipped, and their horizontal component negated;
 * the detection head's centre logits are flipped cell for cell, and its boxes (centre dx, dy from
   the cell's centre, width, height) flipped with dx negated; a cell's mirror is a cell only when
@@ -22,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-FLIPPED_MAPS = ("ground_logit", "height", "centre_logit", "big_centre_logit")
+FLIPPED_MAPS = ("ground_logit", "centre_logit", "big_centre_logit")
 """Outputs (1 x C x H x W) that are mirrored by flipping their columns alone."""
 FLIPPED_VECTORS = ("offsets", "box", "big_box")
 """Outputs (1 x C x H x W) whose channel 0 is a horizontal displacement: flipped and negated."""

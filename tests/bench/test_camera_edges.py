@@ -48,7 +48,12 @@ def test_the_table_on_rendered_sequences(tmp_path, capsys):
     assert printed.count("| d, heads |") == 1 and printed.count("| d, heads + lines |") == 1
     assert printed.count(" lines; pitch ") == 2
     assert main([str(tmp_path / "d"), "--as-run"]) == 0
-    assert capsys.readouterr().out.count("| d, heads + lines |") == 1
+    plain = capsys.readouterr().out
+    assert plain.count("| d, heads + lines |") == 1
+    assert main([str(tmp_path / "d"), "--as-run", "--mirror"]) == 0
+    mirrored = capsys.readouterr().out
+    assert mirrored.count("| d, heads |") == 1
+    assert mirrored != plain    # the heads read the frames and their mirror images: another camera
 
 
 def test_as_run_reads_the_frames_a_run_told_only_the_height_reads(tmp_path):

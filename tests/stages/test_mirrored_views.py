@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from media import make_tiny_contact_model
+from media import make_tiny_contact_model, make_tiny_height_model
 from core.errors import ConfigError
 from core.packets import Frame
 from stages.centre_detections import centre_detections
@@ -119,3 +119,11 @@ def test_a_mirrored_model_needs_an_input_width_of_whole_cells(tmp_path):
     assert not HeightNetModel(part).mirror
     with pytest.raises(ConfigError, match="height.mirror .* stride 3"):
         HeightNetModel(part, mirror=True)
+
+
+def test_a_v1_model_is_not_mirrored(tmp_path):
+    # v1's mirrored reads measured Oxford's people 8.9 -> 20.5 cm off (docs/results.md): refused.
+    path = make_tiny_height_model(tmp_path / "v1.onnx")
+    assert not HeightNetModel(path).mirror
+    with pytest.raises(ConfigError, match="height.mirror needs a HeightNet v2 model"):
+        HeightNetModel(path, mirror=True)
