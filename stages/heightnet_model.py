@@ -297,12 +297,14 @@ class HeightNetModel:
         elif self.threads != first_threads:
             self.session = _session(path, self.threads)
         self._check_signature()
-        if mirror and not self.info.contact:
-            raise ConfigError(f"height.mirror needs a HeightNet v2 model (height.model = \"v2\"); {path} is a v1 "
-                              "model, whose mirrored reads measured real people worse (docs/results.md)")
-        problem = mirror_problem(self.info.input_width, (self.info.detection_stride, self.info.big_detection_stride))
-        if mirror and problem:
-            raise ConfigError(problem)
+        if mirror:
+            if not self.info.contact:
+                raise ConfigError(f"height.mirror needs a HeightNet v2 model (height.model = \"v2\"); {path} is a "
+                                  "v1 model, whose mirrored reads measured real people worse (docs/results.md)")
+            strides = (self.info.detection_stride, self.info.big_detection_stride)
+            problem = mirror_problem(self.info.input_width, strides)
+            if problem:
+                raise ConfigError(problem)
         self.mirror = mirror
         self._mean = np.array(self.info.mean, np.float32) * 255.0
         self._inv_std = 1.0 / (np.array(self.info.std, np.float32) * 255.0)

@@ -53,8 +53,9 @@ def unmirrored(name: str, value: np.ndarray) -> np.ndarray:
 
 
 def unmirrored_outputs(mirrored: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Every output of the mirror image, as the unmirrored frame's would be."""
-    return {name: np.ascontiguousarray(unmirrored(name, value)) for name, value in mirrored.items()}
+    """Every output of the mirror image, as the unmirrored frame's would be (flipped maps are views:
+    the average that reads them makes the new arrays)."""
+    return {name: unmirrored(name, value) for name, value in mirrored.items()}
 
 
 def averaged_with_mirror(outputs: dict[str, np.ndarray], mirror_read: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
