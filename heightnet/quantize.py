@@ -4,11 +4,15 @@
 
 Calibration frames come from a synth dataset (its "train" split: never the held-out scenes the
 accuracy is then measured on), preprocessed exactly as the run-time stage does
-(``HeightNetModel.preprocess``). Weights and activations are INT8 (QDQ format, per-channel
-weights); the heightpipe metadata (input size, normalisation, units) is copied over, so the
-result loads wherever the FP32 model does. Whether to ship it is decided by measurement: the
-held-out accuracy (`heightpipe eval DATA --model FP32 --ablation INT8`) and the speed
-(bench.model_bench / bench.realtime_bench).
+(``HeightNetModel.preprocess``); a v2 network whose detection head reads motion gets each
+frame's frame before as its second input, as at run time (frames after a sequence's first where
+it has more than one; a lone frame is its own frame before, as a run's first frame is).
+Weights and activations are INT8 (QDQ format, per-channel weights); the heightpipe metadata
+(input size, normalisation, units) is copied over, so the result loads wherever the FP32 model
+does. Whether to ship it is decided by measurement: the held-out accuracy (`heightpipe eval DATA
+--model FP32 --ablation INT8`; for v2, `heightpipe eval-tracks DATA --set height.model=INT8
+--set objects.source=network`) and the speed (bench.model_bench / bench.realtime_bench). v2 in
+INT8 lost accuracy for little speed (docs/results.md, fortieth session).
 """
 
 from __future__ import annotations
@@ -24,28 +28,36 @@ class SynthCalibration:
     """ONNX Runtime's calibration reader over preprocessed synth frames."""
 
     def __init__(self, data: Path, model, input_name: str, frames: int):
+        from stages.heightnet_model import PREVIOUS_INPUT
         from synth.dataset import list_sequences
 
         sequences = list_sequences(data, split="train")
         if not sequences:
             raise SystemExit(f"heightpipe: error: no train sequences in {data}")
-        self.tensors: list[np.ndarray] = []
+        self.feeds: list[dict[str, np.ndarray]] = []
         per_sequence = max(1, -(-frames // len(sequences)))
         for sequence in sequences:
-            step = max(1, len(sequence) // per_sequence)
-            for index in range(0, len(sequence), step)[:per_sequence]:
-                bgr = np.ascontiguousarray(sequence.frame(index).rgb[..., ::-1])
-                self.tensors.append(model.preprocess(bgr))
-        self.tensors = self.tensors[:frames]
-        self.input_name = input_name
-        self._next = iter(self.tensors)
+            # A motion-reading head sees a change in every frame but a run's first: calibrate on those.
+            start = 1 if model.takes_previous and len(sequence) > 1 else 0
+            step = max(1, (len(sequence) - start) // per_sequence)
+            for index in range(start, len(sequence), step)[:per_sequence]:
+                feed = {input_name: _prepared(model, sequence, index)}
+                if model.takes_previous:
+                    feed[PREVIOUS_INPUT] = _prepared(model, sequence, max(0, index - 1))
+                self.feeds.append(feed)
+        self.feeds = self.feeds[:frames]
+        self._next = iter(self.feeds)
 
     def get_next(self) -> dict[str, np.ndarray] | None:
-        tensor = next(self._next, None)
-        return None if tensor is None else {self.input_name: tensor}
+        return next(self._next, None)
 
     def rewind(self) -> None:
-        self._next = iter(self.tensors)
+        self._next = iter(self.feeds)
+
+
+def _prepared(model, sequence, index: int) -> np.ndarray:
+    """Frame ``index`` of a synth sequence as the network takes it."""
+    return model.preprocess(np.ascontiguousarray(sequence.frame(index).rgb[..., ::-1]))
 
 
 def quantize(model_path: Path, data: Path, out: Path, frames: int) -> int:
@@ -71,10 +83,11 @@ def quantize(model_path: Path, data: Path, out: Path, frames: int) -> int:
         if entry.key not in present:
             quantized.metadata_props.add(key=entry.key, value=entry.value)
     onnx.save(quantized, str(out))
-    return len(reader.tensors)
+    return len(reader.feeds)
 
 
 def main() -> None:
+    from core.errors import ModelError
     from stages.heightnet_model import SHIPPED_MODEL
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -83,7 +96,10 @@ def main() -> None:
     parser.add_argument("--model", type=Path, default=SHIPPED_MODEL)
     parser.add_argument("--frames", type=int, default=100, help="calibration frames")
     args = parser.parse_args()
-    used = quantize(args.model, args.data, args.out, args.frames)
+    try:
+        used = quantize(args.model, args.data, args.out, args.frames)
+    except ModelError as exc:
+        raise SystemExit(f"heightpipe: error: {exc}") from None
     print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.1f} MB) from {used} calibration frames")
 
 
