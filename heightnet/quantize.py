@@ -87,7 +87,7 @@ def quantize(model_path: Path, data: Path, out: Path, frames: int) -> int:
 
 
 def main() -> None:
-    from core.errors import ModelError
+    from core.errors import HeightpipeError
     from stages.heightnet_model import SHIPPED_MODEL
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -98,7 +98,7 @@ def main() -> None:
     args = parser.parse_args()
     try:
         used = quantize(args.model, args.data, args.out, args.frames)
-    except ModelError as exc:
+    except HeightpipeError as exc:   # the project's own errors are one line each
         raise SystemExit(f"heightpipe: error: {exc}") from None
     print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.1f} MB) from {used} calibration frames")
 

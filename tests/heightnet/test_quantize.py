@@ -73,7 +73,7 @@ def test_a_quantised_v2_keeps_both_inputs_its_metadata_and_runs(train_frames, mo
     assert b.offsets.shape == a.offsets.shape and np.isfinite(b.offsets).all()
 
 
-def test_a_missing_model_is_one_line(train_frames, tmp_path, monkeypatch, capsys):
+def test_a_missing_model_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setattr("sys.argv", ["quantize", "data", "--model", str(tmp_path / "none.onnx"),
                                      "--out", str(tmp_path / "out.onnx")])
     with pytest.raises(SystemExit) as stop:
