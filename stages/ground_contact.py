@@ -132,15 +132,17 @@ def contact_offsets(camera: PinholeCamera, height_m: np.ndarray, ground: np.ndar
 def heights_from_offsets(camera: PinholeCamera, offsets: np.ndarray) -> np.ndarray:
     """Height in metres above the ground (H x W) seen at each pixel, from its contact offset."""
     h, w = offsets.shape[:2]
-    M = ray_matrix(camera)
-    u, v = np.arange(w, dtype=np.float64)[None, :], np.arange(h, dtype=np.float64)[:, None]
-    du, dv = offsets[..., 0].astype(np.float64), offsets[..., 1].astype(np.float64)
+    # float32 throughout, like the offsets and the map it returns: within 2e-6 m of float64 and a
+    # third of its time (320x240: 3.1 -> 1.0 ms), once a frame in a live run.
+    M = ray_matrix(camera).astype(np.float32)
+    u, v = np.arange(w, dtype=np.float32)[None, :], np.arange(h, dtype=np.float32)[:, None]
+    du, dv = offsets[..., 0].astype(np.float32), offsets[..., 1].astype(np.float32)
     # Rays are affine in the pixel, so the contact point's ray is the pixel's plus the offset's
-    # share (the same numbers as world_rays(uv + offsets) to ~1e-16). Built one component at a
+    # share (the same numbers as world_rays(uv + offsets) to rounding). Built one component at a
     # time from a row and a column: no H x W x 2 grid or matrix product (1.8 -> 0.5 ms at 320x180).
     r_p = [u * M[0, k] + v * M[1, k] + M[2, k] for k in range(3)]
     r_f = [r_p[k] + du * M[0, k] + dv * M[1, k] for k in range(3)]
-    return _height(r_p, r_f, camera.C[2], np).astype(np.float32)
+    return _height(r_p, r_f, np.float32(camera.C[2]), np).astype(np.float32, copy=False)
 
 
 def _height(r_p, r_f, c_z, xp):
