@@ -27,7 +27,7 @@ import numpy as np
 class SynthCalibration:
     """ONNX Runtime's calibration reader over preprocessed synth frames."""
 
-    def __init__(self, data: Path, model, input_name: str, frames: int):
+    def __init__(self, data: Path, model, frames: int):
         from stages.heightnet_model import PREVIOUS_INPUT
         from synth.dataset import list_sequences
 
@@ -41,7 +41,7 @@ class SynthCalibration:
             start = 1 if model.takes_previous and len(sequence) > 1 else 0
             step = max(1, (len(sequence) - start) // per_sequence)
             for index in range(start, len(sequence), step)[:per_sequence]:
-                feed = {input_name: _prepared(model, sequence, index)}
+                feed = {model.input_name: _prepared(model, sequence, index)}
                 if model.takes_previous:
                     feed[PREVIOUS_INPUT] = _prepared(model, sequence, max(0, index - 1))
                 self.feeds.append(feed)
@@ -69,7 +69,7 @@ def quantize(model_path: Path, data: Path, out: Path, frames: int) -> int:
     from stages.heightnet_model import HeightNetModel
 
     model = HeightNetModel(model_path, threads=2)
-    reader = SynthCalibration(data, model, model.input_name, frames)
+    reader = SynthCalibration(data, model, frames)
     with tempfile.TemporaryDirectory() as tmp:
         prepared = Path(tmp) / "prepared.onnx"
         quant_pre_process(str(model.path), str(prepared), skip_symbolic_shape=True)

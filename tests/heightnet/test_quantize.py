@@ -33,7 +33,7 @@ def motion_v2(tmp_path_factory):
 
 def test_a_motion_reading_v2_is_calibrated_with_each_frame_and_the_one_before(train_frames, motion_v2):
     model = HeightNetModel(motion_v2, threads=1)
-    reader = SynthCalibration("unused", model, model.input_name, frames=4)
+    reader = SynthCalibration("unused", model, frames=4)
     feeds = [reader.get_next() for _ in range(4)]
     assert reader.get_next() is None
     prepared = [[model.preprocess(seq.frame(i).rgb[..., ::-1].copy()) for i in range(len(seq))] for seq in train_frames]
@@ -47,14 +47,14 @@ def test_a_motion_reading_v2_is_calibrated_with_each_frame_and_the_one_before(tr
 def test_a_lone_frame_is_its_own_frame_before(motion_v2, monkeypatch):
     monkeypatch.setattr("synth.dataset.list_sequences", lambda data, split: fake_sequences(count=1, frames=1))
     model = HeightNetModel(motion_v2, threads=1)
-    feed = SynthCalibration("unused", model, model.input_name, frames=4).get_next()
+    feed = SynthCalibration("unused", model, frames=4).get_next()
     np.testing.assert_array_equal(feed[PREVIOUS_INPUT], feed[model.input_name])
 
 
 def test_a_one_input_model_is_fed_its_image_alone(train_frames, exported_model):
     _, report = exported_model
     model = HeightNetModel(report.path, threads=1)
-    reader = SynthCalibration("unused", model, model.input_name, frames=3)
+    reader = SynthCalibration("unused", model, frames=3)
     feeds = [reader.get_next() for _ in range(3)]
     assert all(set(feed) == {model.input_name} for feed in feeds) and reader.get_next() is None
 
