@@ -208,6 +208,15 @@ class TrackingConfig:
     """Once a track is confirmed, its tentative frames are reported too (they held its
     detections; at 25 fps the first 4 frames of every track were missing). Outputs wait for
     the frames whose tentative tracks are not yet settled: a live source's by up to confirm_s."""
+    fill_gaps_s: float = 0.6
+    """A confirmed track found again at most this long after its last detection: the frames between
+    get boxes interpolated between the two detections (not the prediction from the first), and are
+    reported as the track's. Outputs wait while such a gap may still close; a live source's do not
+    (its alerts stay prompt: its gaps keep their predicted boxes). 0 = off."""
+    smooth_s: float = 0.2
+    """Files: a track's box in a frame with a detection becomes a straight line's fit to its boxes
+    within this long either side (the motion filter has seen only the frames before; less jitter).
+    Outputs wait this long; a live source's do not (0 = off)."""
     max_misses: int = 30
     """Frames without a detection before a track is deleted, at least ..."""
     max_miss_s: float = 4.0

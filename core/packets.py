@@ -292,9 +292,20 @@ class Track:
     age: int = 0
     updated: bool = True
     """Whether a detection was associated this frame (else the box is predicted)."""
+    filled: bool = False
+    """Not updated, but found again soon after: the box is interpolated between the detections
+    before and after this frame (``tracking.fill_gaps_s``, pipeline/track_backfill.py)."""
     foot_in_view: bool = True
     """False where the object reaches past the image's bottom edge: ``box`` is cut there, and its
     bottom is the frame's edge, not where the object stands."""
+
+    @property
+    def box_source(self) -> str:
+        """Where this frame's box comes from: 'detected', 'interpolated' (``filled``) or 'predicted'
+        (coasting), as the outputs say it."""
+        if self.updated:
+            return "detected"
+        return "interpolated" if self.filled else "predicted"
 
 
 @dataclass

@@ -54,6 +54,8 @@ class OutputBox:
     cls: str
     height_source: str
     updated: bool
+    filled: bool = False
+    """Its box interpolated between the track's detections around this frame (``Track.filled``)."""
 
 
 @dataclass
@@ -82,9 +84,10 @@ class FrameRecord:
 
     @property
     def seen_tracks(self) -> list[OutputBox]:
-        """The tracks updated with a detection this frame: the boxes the MOT metrics score (a
-        predicted box is the tracker's guess, not a report)."""
-        return [o for o in self.tracks if o.updated]
+        """The tracks updated with a detection this frame, or with boxes interpolated between the
+        detections around it: the boxes the MOT metrics score (a box predicted from one side only
+        is the tracker's guess, not a report)."""
+        return [o for o in self.tracks if o.updated or o.filled]
 
 
 @dataclass
@@ -272,7 +275,8 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
     start = time.perf_counter()
     try:
         with contextlib.closing(sequence_packets(sequence, chain, max_frames, camera)) as packets:
-            for truth_frame, packet in backfilled(packets, lambda pair: pair[1], config.tracking.backfill):
+            for truth_frame, packet in backfilled(packets, lambda pair: pair[1], config.tracking.backfill,
+                                                  config.tracking.fill_gaps_s, config.tracking.smooth_s):
                 if sink is not None:
                     sink.write(packet)
                 speeds = ground_speeds(sequence, packet.frame.index)
@@ -282,7 +286,7 @@ def run_sequence(sequence, config: Config, heights: str = "model", geometry: boo
                                     speeds.get(o.id, float("nan")))
                            for o in sequence.objects(packet.frame.index)],
                     tracks=[OutputBox(t.track_id, tuple(map(float, t.box)), t.height_m, t.height_std_m,
-                                      t.cls, t.height_source, t.updated)
+                                      t.cls, t.height_source, t.updated, t.filled)
                             for t in packet.tracks if t.confirmed],
                     detections=[detection_record(d) for d in packet.detections],
                     region=dont_care_region(truth_frame.semantic),

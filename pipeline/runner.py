@@ -362,7 +362,12 @@ def run_pipeline(source_spec: str, config: Config, prefix: Path,
     else:
         packets = chain.run(frames, camera)
     summary.overlapped = overlapped is not None
-    backfill = TrackBackfill(enabled=config.tracking.backfill)
+    # A live source's outputs (its alerts, its view) are not held for gaps to close or boxes to
+    # be smoothed: only files'.
+    live = isinstance(source, StreamSource)
+    backfill = TrackBackfill(enabled=config.tracking.backfill,
+                             fill_gaps_s=0.0 if live else config.tracking.fill_gaps_s,
+                             smooth_s=0.0 if live else config.tracking.smooth_s)
     start = time.perf_counter()
 
     def write(packet: FramePacket) -> None:

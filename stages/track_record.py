@@ -15,6 +15,7 @@ no tracks, so a reader learns each frame's source index and time from it.
       uint32 id = 1;  Box box = 2;  string class_name = 3;  double height_m = 4;
       double height_std_m = 5;  GroundPosition ground_position = 6;  // unset: not calibrated
       bool confirmed = 7;  string height_source = 8;  double score = 9;
+      string box_source = 10;                   // detected, interpolated or predicted
     }
     message Box { double x = 1; double y = 2; double width = 3; double height = 4; }  // pixels
     message GroundPosition { double x_m = 1; double y_m = 2; }  // world metres
@@ -43,7 +44,7 @@ _MESSAGES: dict[str, list[tuple[str, int, int, str]]] = {
               ("height_std_m", 5, _F.TYPE_DOUBLE, ""),
               ("ground_position", 6, _F.TYPE_MESSAGE, ".heightpipe.GroundPosition"),
               ("confirmed", 7, _F.TYPE_BOOL, ""), ("height_source", 8, _F.TYPE_STRING, ""),
-              ("score", 9, _F.TYPE_DOUBLE, "")],
+              ("score", 9, _F.TYPE_DOUBLE, ""), ("box_source", 10, _F.TYPE_STRING, "")],
     "TrackArray": [("timestamp", 1, _F.TYPE_MESSAGE, ".google.protobuf.Timestamp"),
                    ("frame_index", 2, _F.TYPE_UINT64, ""), ("time_s", 3, _F.TYPE_DOUBLE, ""),
                    ("tracks", 4, _F.TYPE_MESSAGE, ".heightpipe.Track")],
@@ -93,7 +94,7 @@ def encode_track_array(record_type: TrackRecordType, log_time_ns: int, frame_ind
         item = message.tracks.add(
             id=track.track_id, class_name=track.cls, height_m=track.height_m,
             height_std_m=track.height_std_m, confirmed=track.confirmed,
-            height_source=track.height_source, score=track.score)
+            height_source=track.height_source, score=track.score, box_source=track.box_source)
         item.box.x, item.box.y, item.box.width, item.box.height = (float(v) for v in track.box)
         if track.ground_xy_m is not None:
             item.ground_position.x_m, item.ground_position.y_m = (float(v) for v in track.ground_xy_m)
@@ -110,5 +111,7 @@ def tracks_from_record(message: Any) -> list[Track]:
             track_id=item.id, box=(item.box.x, item.box.y, item.box.width, item.box.height),
             cls=item.class_name, height_m=item.height_m, height_std_m=item.height_std_m,
             score=item.score, confirmed=item.confirmed, ground_xy_m=ground,
-            height_source=item.height_source))
+            height_source=item.height_source,
+            # Recordings from before box_source said nothing: their boxes read as detected.
+            updated=item.box_source in ("", "detected"), filled=item.box_source == "interpolated"))
     return tracks

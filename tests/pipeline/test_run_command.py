@@ -16,7 +16,7 @@ from media import (REPO_ROOT, default_sigint, make_tiny_height_model, mjpeg_serv
                    write_truncated_avi)
 
 CSV_HEADER = ["frame", "time_s", "track_id", "class", "x", "y", "w", "h", "score", "height_m", "height_std_m",
-              "height_source", "frame_damaged", "network_reused"]
+              "height_source", "frame_damaged", "network_reused", "box_source"]
 
 
 def heightpipe(*args, timeout=120):

@@ -52,6 +52,8 @@ def test_a_stop_swallowed_inside_a_del_still_stops_the_run_at_the_next_frame(
         if frames == 5:
             SignalledOnCollection()  # made and collected at once
 
+    # Frames written as they are processed (no wait for boxes to smooth), so the counts are frames.
+    config.tracking.smooth_s = config.tracking.fill_gaps_s = 0.0
     summary = run_pipeline(str(box_video), config, tmp_path / "run", on_frame=on_frame)
     assert summary.interrupted == "SIGTERM"
     assert summary.frames == 6
