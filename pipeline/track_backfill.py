@@ -46,13 +46,15 @@ TIME_EPSILON_S = 1e-6
 
 
 class TrackBackfill(Generic[Item]):
-    """Delays items (packets, or anything that carries one) until their tentative tracks are settled
-    and their coasting tracks' gaps can no longer be filled.
+    """Delays items (packets, or anything that carries one) until their tentative tracks are settled,
+    their coasting tracks' gaps can no longer be filled and the frames their boxes are smoothed
+    with have come.
 
     ``push`` returns the items that can go out now, oldest first; ``drain`` returns the rest
     at the end of a run (or when it is stopped: their tentative tracks stay unconfirmed, their
-    coasting boxes predicted). Not ``enabled`` (``tracking.backfill = false``) and no
-    ``fill_gaps_s``, every item goes out as it comes.
+    coasting boxes predicted, their boxes smoothed with the frames there are). Not ``enabled``
+    (``tracking.backfill = false``), no ``fill_gaps_s`` and no ``smooth_s``, every item goes out
+    as it comes.
     """
 
     def __init__(self, packet_of: Callable[[Item], FramePacket] = lambda item: item, max_held: int = 50,
@@ -92,48 +94,6 @@ class TrackBackfill(Generic[Item]):
         ready = [self._release(item) for item in self._held]
         self._held.clear()
         return ready
-
-    def _release(self, item: Item) -> Item:
-        if self.smooth_s:
-            self._smooth(self.packet_of(item))
-        return item
-
-    def _remember_boxes(self, newest: FramePacket) -> None:
-        """Keeps each track's boxes of the last moments (those a held frame may still be fitted with)."""
-        now = newest.frame.time_s
-        for track in newest.tracks:
-            if track.updated:
-                self._boxes.setdefault(track.track_id, deque()).append((now, track.box))
-        oldest = self.packet_of(self._held[0]).frame.time_s - self.smooth_s - TIME_EPSILON_S
-        for track_id in list(self._boxes):
-            boxes = self._boxes[track_id]
-            while boxes and boxes[0][0] < oldest:
-                boxes.popleft()
-            if not boxes:
-                del self._boxes[track_id]
-
-    def _waits_for_later_boxes(self, packet: FramePacket, now: float) -> bool:
-        """Whether a frame with a detected box waits for frames ``smooth_s`` after it."""
-        return bool(self.smooth_s) and now < packet.frame.time_s + self.smooth_s - TIME_EPSILON_S \
-            and any(t.updated for t in packet.tracks)
-
-    def _smooth(self, packet: FramePacket) -> None:
-        """Each detected box becomes the value at its frame's time of a straight line fitted to
-        the track's boxes within ``smooth_s`` either side (at least three of them)."""
-        time_s = packet.frame.time_s
-        for track in packet.tracks:
-            if not track.updated:
-                continue
-            near = [(t, box) for t, box in self._boxes.get(track.track_id, ())
-                    if abs(t - time_s) <= self.smooth_s + TIME_EPSILON_S]
-            if len(near) < 3:
-                continue
-            # The least-squares line's value at dt = 0, in closed form (np.linalg.lstsq took twice as long).
-            dt = np.array([t - time_s for t, _ in near])
-            boxes = np.array([box for _, box in near])
-            n, s_t, s_tt = len(near), dt.sum(), dt @ dt
-            at_zero = (s_tt * boxes.sum(axis=0) - s_t * (dt @ boxes)) / (n * s_tt - s_t * s_t)
-            track.box = tuple(float(v) for v in at_zero)
 
     def _confirm(self, newest: FramePacket) -> None:
         """Marks confirmed, in every held packet, the tracks the newest packet confirms."""
@@ -176,6 +136,48 @@ class TrackBackfill(Generic[Item]):
                 | {t.track_id for t in newest.tracks if self.fill_gaps_s and _coasting(t)
                    and t.track_id in self._last_seen
                    and now - self._last_seen[t.track_id][0] < self.fill_gaps_s - TIME_EPSILON_S})
+
+    def _remember_boxes(self, newest: FramePacket) -> None:
+        """Keeps each track's boxes of the last moments (those a held frame may still be fitted with)."""
+        now = newest.frame.time_s
+        for track in newest.tracks:
+            if track.updated:
+                self._boxes.setdefault(track.track_id, deque()).append((now, track.box))
+        oldest = self.packet_of(self._held[0]).frame.time_s - self.smooth_s - TIME_EPSILON_S
+        for track_id in list(self._boxes):
+            boxes = self._boxes[track_id]
+            while boxes and boxes[0][0] < oldest:
+                boxes.popleft()
+            if not boxes:
+                del self._boxes[track_id]
+
+    def _waits_for_later_boxes(self, packet: FramePacket, now: float) -> bool:
+        """Whether a frame with a detected box waits for frames ``smooth_s`` after it."""
+        return bool(self.smooth_s) and now < packet.frame.time_s + self.smooth_s - TIME_EPSILON_S \
+            and any(t.updated for t in packet.tracks)
+
+    def _release(self, item: Item) -> Item:
+        if self.smooth_s:
+            self._smooth(self.packet_of(item))
+        return item
+
+    def _smooth(self, packet: FramePacket) -> None:
+        """Each detected box becomes the value at its frame's time of a straight line fitted to
+        the track's boxes within ``smooth_s`` either side (at least three of them)."""
+        time_s = packet.frame.time_s
+        for track in packet.tracks:
+            if not track.updated:
+                continue
+            near = [(t, box) for t, box in self._boxes.get(track.track_id, ())
+                    if abs(t - time_s) <= self.smooth_s + TIME_EPSILON_S]
+            if len(near) < 3:
+                continue
+            # The least-squares line's value at dt = 0, in closed form (np.linalg.lstsq took twice as long).
+            dt = np.array([t - time_s for t, _ in near])
+            boxes = np.array([box for _, box in near])
+            n, s_t, s_tt = len(near), dt.sum(), dt @ dt
+            at_zero = (s_tt * boxes.sum(axis=0) - s_t * (dt @ boxes)) / (n * s_tt - s_t * s_t)
+            track.box = tuple(float(v) for v in at_zero)
 
 
 def _waits_on(packet: FramePacket, undecided: set[int]) -> bool:

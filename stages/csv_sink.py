@@ -48,4 +48,3 @@ class TrackCsvSink:
 
     def close(self) -> None:
         self._file.close()
-
