@@ -9,7 +9,8 @@ same recording. Entities:
     /camera/ground      ground mask overlay (SegmentationImage; only with output.ground_overlay)
     /camera/matches     matched features, arrows from the previous to this frame
     /camera/tracks      confirmed tracks: boxes labelled "1.72 m ±4 cm" (+ "#12 person, geometry"
-                        when the box has room), coloured by quality: settled / settling / no height
+                        when the box has room, + ", box predicted" / ", box interpolated" where no
+                        detection placed it), coloured by quality: settled / settling / no height
     /camera/events      a magenta frame around each object that fired a height rule, for a few seconds
     /height             height map in millimetres, shown colour-mapped in metres
     /tracks/<id>/height one height time series per confirmed track; cleared while it coasts

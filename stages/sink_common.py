@@ -217,11 +217,14 @@ def height_text(height_m: float, std_m: float) -> str:
 
 
 def track_label(track: Track) -> str:
-    """'1.72 m ±4 cm', with '#12 person, geometry' on a second line when the box has room."""
+    """'1.72 m ±4 cm', with '#12 person, geometry' on a second line when the box has room (and
+    ', box predicted' or ', box interpolated' where no detection placed it this frame)."""
     text = height_text(track.height_m, track.height_std_m)
     _x, _y, width, height = track.box
     if width >= CONSTANTS.label_room_px[0] and height >= CONSTANTS.label_room_px[1]:
         text += f"\n#{track.track_id} {track.cls}, {track.height_source}"
+        if not track.updated:
+            text += f", box {track.box_source}"
     return text
 
 
