@@ -65,10 +65,9 @@ class TrackBackfill(Generic[Item]):
         self.fill_gaps_s = max(0.0, fill_gaps_s)
         self.smooth_s = max(0.0, smooth_s)
         self._held: deque[Item] = deque()
-        self._last_seen: dict[int, tuple[float, tuple[float, float, float, float]]] = {}
-        """Each live track's last detection: (frame time, box)."""
-        self._boxes: dict[int, deque[tuple[float, tuple[float, float, float, float]]]] = {}
-        """Each track's recent boxes in frames with a detection, as the tracker gave them (smoothing)."""
+        self._detections: dict[int, deque[tuple[float, tuple[float, float, float, float]]]] = {}
+        """Each track's boxes in frames with a detection, as the tracker gave them, (frame time, box):
+        its last one (where a gap starts) and those a held frame may still be smoothed with."""
 
     def push(self, item: Item) -> list[Item]:
         if not self.enabled and not self.fill_gaps_s and not self.smooth_s:
@@ -77,10 +76,8 @@ class TrackBackfill(Generic[Item]):
         self._held.append(item)
         if self.enabled:
             self._confirm(newest)
-        if self.smooth_s:
-            self._remember_boxes(newest)
-        if self.fill_gaps_s:
-            self._fill_gaps(newest)
+        if self.fill_gaps_s or self.smooth_s:
+            self._record_detections(newest)
         undecided = self._undecided(newest)
         now = newest.frame.time_s
         ready = []
@@ -103,18 +100,25 @@ class TrackBackfill(Generic[Item]):
                 if not track.confirmed and track.track_id in confirmed:
                     track.confirmed = True
 
-    def _fill_gaps(self, newest: FramePacket) -> None:
-        """Interpolates the held coasting boxes of each track the newest packet finds again in time."""
+    def _record_detections(self, newest: FramePacket) -> None:
+        """Adds the newest packet's detected boxes, first interpolating the held coasting boxes of
+        each track it finds again within ``fill_gaps_s``; forgets the boxes no frame needs."""
         now = newest.frame.time_s
         for track in newest.tracks:
             if not track.updated:
                 continue
-            seen = self._last_seen.get(track.track_id)
-            if seen is not None and now - seen[0] <= self.fill_gaps_s + TIME_EPSILON_S:
-                self._interpolate(track.track_id, seen, (now, track.box))
-            self._last_seen[track.track_id] = (now, track.box)
+            boxes = self._detections.setdefault(track.track_id, deque())
+            if self.fill_gaps_s and boxes and now - boxes[-1][0] <= self.fill_gaps_s + TIME_EPSILON_S:
+                self._interpolate(track.track_id, boxes[-1], (now, track.box))
+            boxes.append((now, track.box))
         alive = {t.track_id for t in newest.tracks}
-        self._last_seen = {k: v for k, v in self._last_seen.items() if k in alive}
+        oldest = self.packet_of(self._held[0]).frame.time_s - self.smooth_s - TIME_EPSILON_S
+        for track_id in list(self._detections):
+            boxes = self._detections[track_id]
+            while len(boxes) > 1 and boxes[0][0] < oldest:
+                boxes.popleft()
+            if track_id not in alive and boxes[-1][0] < oldest:
+                del self._detections[track_id]
 
     def _interpolate(self, track_id: int, start: tuple[float, tuple], end: tuple[float, tuple]) -> None:
         (t0, box0), (t1, box1) = start, end
@@ -134,22 +138,8 @@ class TrackBackfill(Generic[Item]):
         now = newest.frame.time_s
         return ({t.track_id for t in newest.tracks if self.enabled and not t.confirmed}
                 | {t.track_id for t in newest.tracks if self.fill_gaps_s and _coasting(t)
-                   and t.track_id in self._last_seen
-                   and now - self._last_seen[t.track_id][0] < self.fill_gaps_s - TIME_EPSILON_S})
-
-    def _remember_boxes(self, newest: FramePacket) -> None:
-        """Keeps each track's boxes of the last moments (those a held frame may still be fitted with)."""
-        now = newest.frame.time_s
-        for track in newest.tracks:
-            if track.updated:
-                self._boxes.setdefault(track.track_id, deque()).append((now, track.box))
-        oldest = self.packet_of(self._held[0]).frame.time_s - self.smooth_s - TIME_EPSILON_S
-        for track_id in list(self._boxes):
-            boxes = self._boxes[track_id]
-            while boxes and boxes[0][0] < oldest:
-                boxes.popleft()
-            if not boxes:
-                del self._boxes[track_id]
+                   and t.track_id in self._detections
+                   and now - self._detections[t.track_id][-1][0] < self.fill_gaps_s - TIME_EPSILON_S})
 
     def _waits_for_later_boxes(self, packet: FramePacket, now: float) -> bool:
         """Whether a frame with a detected box waits for frames ``smooth_s`` after it."""
@@ -168,7 +158,7 @@ class TrackBackfill(Generic[Item]):
         for track in packet.tracks:
             if not track.updated:
                 continue
-            near = [(t, box) for t, box in self._boxes.get(track.track_id, ())
+            near = [(t, box) for t, box in self._detections.get(track.track_id, ())
                     if abs(t - time_s) <= self.smooth_s + TIME_EPSILON_S]
             if len(near) < 3:
                 continue
