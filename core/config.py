@@ -214,8 +214,9 @@ class TrackingConfig:
     reported as the track's. Outputs wait while such a gap may still close; a live source's do not
     (its alerts stay prompt: its gaps keep their predicted boxes). 0 = off."""
     smooth_s: float = 0.2
-    """Files: a track's box in a frame with a detection becomes a straight line's fit to its boxes
-    within this long either side (the motion filter has seen only the frames before; less jitter).
+    """Files: a track's box in a frame with a detection becomes a straight line's fit to its
+    detections' boxes within this long either side (the motion filter has seen only the frames
+    before; less jitter).
     Outputs wait this long; a live source's do not (0 = off)."""
     max_misses: int = 30
     """Frames without a detection before a track is deleted, at least ..."""

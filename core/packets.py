@@ -295,6 +295,10 @@ class Track:
     filled: bool = False
     """Not updated, but found again soon after: the box is interpolated between the detections
     before and after this frame (``tracking.fill_gaps_s``, pipeline/track_backfill.py)."""
+    detected_box: tuple[float, float, float, float] | None = None
+    """The box of the detection that updated the track this frame (None where none did): what was
+    measured, where ``box`` is the motion filter's estimate from it and the frames before (the
+    smoothing fits these: pipeline/track_backfill.py)."""
     foot_in_view: bool = True
     """False where the object reaches past the image's bottom edge: ``box`` is cut there, and its
     bottom is the frame's edge, not where the object stands."""

@@ -42,6 +42,20 @@ def _shares_table(title: str, kinds: tuple[str, ...], breakdown: dict[str, dict]
     return "\n".join(lines)
 
 
+def format_localisation(rows: dict[str, dict], reported: dict) -> str:
+    """``eval_localisation.localisation_headroom`` under the reported scores: what each part of
+    the boxes, put right, would add."""
+    keys = ("HOTA", "DetA", "AssA", "IDF1")
+    lines = ["  scores with the boxes put right (each box about a required object given that part of the "
+             "object's true box):",
+             (f"    {'':<26}" + "".join(f"{key:<16}" for key in keys)).rstrip(),
+             (f"    {'boxes as reported':<26}" + "".join(f"{reported[key]:<16.3f}" for key in keys)).rstrip()]
+    for name, row in rows.items():
+        lines.append(f"    {name + ' right':<26}" + "".join(
+            f"{f'{row[key]:.3f} ({row[key] - reported[key]:+.3f})':<16}" for key in keys).rstrip())
+    return "\n".join(lines)
+
+
 def format_detections(table: dict[str, dict]) -> str:
     """The detection scores (``eval_metrics.detection_scores``): recall and precision before
     tracking, of any class and with the class right (class-), per group."""

@@ -19,6 +19,9 @@ the shipped network or, with ``--heights oracle``, from the ground-truth height 
 * Detections before tracking: recall and precision of object extraction's boxes (IoU 0.5), of
   any class and with the class right, per class, box height, camera height, weather and time of
   day, printed after the HOTA/IDF1 table and under "detection" in ``--json``.
+* Localisation (``--localisation``, ``eval_localisation``): the scores again with the boxes'
+  horizontal extent, vertical extent or whole box taken from the objects they are about: how much
+  of HOTA the boxes' fit loses, and in which direction.
 * Against another run (``--against BASE.json``, ``eval_compare``): both runs' height errors over
   the objects both count, and their scores side by side.
 
@@ -27,9 +30,9 @@ neither required nor penalised, and a track box on one is dropped (as MOTChallen
 occluded and distractor boxes); so is a box no required object claims that lies mostly on a
 parked vehicle, which the generator draws without a box (KITTI's DontCare areas).
 
-This module is the command; the work is in four: ``eval_sequences`` (running the stages over a
-sequence), ``eval_metrics`` (the scores), ``eval_reports`` (the printed tables, the picture) and
-``eval_compare`` (two reports side by side).
+This module is the command; the work is in five: ``eval_sequences`` (running the stages over a
+sequence), ``eval_metrics`` (the scores), ``eval_localisation`` (the scores with boxes put right),
+``eval_reports`` (the printed tables, the picture) and ``eval_compare`` (two reports side by side).
 """
 
 from __future__ import annotations
@@ -43,9 +46,10 @@ from pathlib import Path
 from core.config import Config
 from core.errors import HeightpipeError
 from pipeline.eval_compare import check_comparable, compare_reports, format_comparison
+from pipeline.eval_localisation import localisation_headroom
 from pipeline.eval_metrics import evaluate
-from pipeline.eval_reports import (format_misses, format_report, format_wrong_detections, format_wrong_tracks,
-                                   json_default, plot_height_series)
+from pipeline.eval_reports import (format_localisation, format_misses, format_report, format_wrong_detections,
+                                   format_wrong_tracks, json_default, plot_height_series)
 from pipeline.eval_sequences import CAMERA_KNOWN, run_sequence
 
 
@@ -73,6 +77,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also print why required objects were missed (not detected, merged, box off, "
                              "detected but not tracked) and what lies under wrong detections and wrong track "
                              "boxes, per class, size, time of day, weather")
+    parser.add_argument("--localisation", action="store_true",
+                        help="also score the runs again with the boxes' horizontal extent, vertical extent or "
+                             "whole box taken from the objects they are about: how much of HOTA the boxes' fit "
+                             "loses, and where")
     parser.add_argument("--json", metavar="FILE", help="write the full report as JSON")
     parser.add_argument("--against", metavar="BASE_JSON",
                         help="another run's --json report on the same data: heights compared over the objects "
@@ -127,6 +135,9 @@ def main(args: argparse.Namespace, config: Config) -> int:
         print(format_misses(report["misses"]))
         print(format_wrong_detections(report["wrong_detections"]))
         print(format_wrong_tracks(report["wrong_tracks"]))
+    if args.localisation:
+        report["localisation"] = localisation_headroom(runs, args.min_visibility, args.min_box_px)
+        print(format_localisation(report["localisation"], report["mot"]))
     if base is not None:
         report["against"] = compare_reports(report, base)
         print(format_comparison(report["against"], args.against))

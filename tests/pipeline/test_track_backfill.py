@@ -150,6 +150,22 @@ def test_smoothing_fits_the_boxes_the_tracker_gave_not_smoothed_ones_nor_predict
     np.testing.assert_allclose(got, [0.0, 1.0, 2.0, 3.0, 99.0, 0.0])
 
 
+def test_the_line_and_the_gaps_go_through_the_detections_boxes_not_the_filters():
+    # The filter's box lags each detection by 3 px; the detections move 2 px a frame.
+    def frame(index, x):
+        packet = seen(index, {1: None if x is None else (x - 3.0, 0.0, 4.0, 8.0)})
+        if x is not None:
+            packet.tracks[0].detected_box = (x, 0.0, 4.0, 8.0)
+        return packet
+
+    xs = [0.0, 2.0, 4.0, None, 8.0, 10.0]
+    out = list(backfilled([frame(i, x) for i, x in enumerate(xs)], fill_gaps_s=0.6, smooth_s=0.1))
+    got = [box[0] for box, _ in boxes_of(out)]
+    # Frame 1 has three detections within 0.1 s: the line through them (2.0); the others have two
+    # and keep the filter's box; the gap at frame 3 is filled between the detections 4 and 8.
+    np.testing.assert_allclose(got, [-3.0, 2.0, 1.0, 6.0, 5.0, 7.0])
+
+
 def test_a_frame_with_a_detected_box_waits_for_the_frames_after_it():
     backfill = TrackBackfill(enabled=False, smooth_s=0.2)
     box = (0.0, 0.0, 4.0, 8.0)

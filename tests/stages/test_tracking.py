@@ -180,6 +180,17 @@ def test_a_coasting_box_keeps_its_size():
     assert tracks[0].box[2] == pytest.approx(last_w, abs=4) and tracks[0].box[3] == pytest.approx(last_h, abs=4)
 
 
+def test_a_track_reports_the_box_of_the_detection_that_updated_it_beside_the_filters():
+    tracker = ObjectTracker(TrackingConfig(min_hits=2))
+    for frame in range(5):
+        box = (100.0 + 6 * frame + (3.0 if frame == 4 else 0.0), 50.0, 30.0, 80.0)
+        tracks = tracker.update([_detection(*box[:2], 1.7)])
+    assert tracks[0].detected_box == box
+    assert tracks[0].box != box                     # the filter weighs the jump against its prediction
+    tracks = tracker.update([])
+    assert not tracks[0].updated and tracks[0].detected_box is None
+
+
 def test_missing_heights_do_not_crash_or_poison_the_state():
     tracker = ObjectTracker(TrackingConfig())
     tracks = tracker.update([_detection(10, 10, float("nan"), noise_m=float("inf"))])
