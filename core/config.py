@@ -216,8 +216,7 @@ class TrackingConfig:
     smooth_s: float = 0.2
     """Files: a track's box in a frame with a detection becomes a straight line's fit to its
     detections' boxes within this long either side (the motion filter has seen only the frames
-    before; less jitter).
-    Outputs wait this long; a live source's do not (0 = off)."""
+    before; less jitter). Outputs wait this long; a live source's do not (0 = off)."""
     max_misses: int = 30
     """Frames without a detection before a track is deleted, at least ..."""
     max_miss_s: float = 4.0
