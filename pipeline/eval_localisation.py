@@ -22,8 +22,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline.eval_metrics import CONSTANTS, cared_for, iou_matrix, mot_data, mot_metrics
-from pipeline.eval_sequences import FrameRecord, OutputBox, SequenceRun
+from pipeline.eval_metrics import CONSTANTS, cared_for, matched_at_iou, mot_data, mot_metrics
+from pipeline.eval_sequences import FrameRecord, SequenceRun
 
 PUT_RIGHT = {
     "horizontal extent": (0, 2),
@@ -53,21 +53,17 @@ def _with_boxes_put_right(run: SequenceRun, parts: tuple[int, ...], min_visibili
 
 def _frame_put_right(frame: FrameRecord, parts: tuple[int, ...], min_visibility: float,
                      min_box_px: float) -> FrameRecord:
-    from scipy.optimize import linear_sum_assignment
-
-    scored = [i for i, track in enumerate(frame.tracks) if track.updated or track.filled]
-    if not scored or not frame.truth:
-        return frame
+    """The frame with only its scored boxes (``seen_tracks``: the copy is for the MOT metrics,
+    which score no others), those about a required object put right."""
+    scored = frame.seen_tracks
     # Matched over all the truth, so that a box on a don't-care object is not pulled onto a
     # required one beside it.
-    iou = iou_matrix([t.box for t in frame.truth], [frame.tracks[i].box for i in scored])
-    tracks: list[OutputBox] = list(frame.tracks)
-    for row, col in zip(*linear_sum_assignment(-iou)):
+    pairs = matched_at_iou([t.box for t in frame.truth], [o.box for o in scored], CONSTANTS.miss_near_iou)
+    for row, col in pairs:
         truth = frame.truth[row]
-        if iou[row, col] < CONSTANTS.miss_near_iou or not cared_for(truth, min_visibility, min_box_px):
+        if not cared_for(truth, min_visibility, min_box_px):
             continue
-        index = scored[col]
-        box = np.array(tracks[index].box, dtype=float)
+        box = np.array(scored[col].box, dtype=float)
         box[list(parts)] = np.asarray(truth.box, dtype=float)[list(parts)]
-        tracks[index] = replace(tracks[index], box=tuple(float(v) for v in box))
-    return replace(frame, tracks=tracks)
+        scored[col] = replace(scored[col], box=tuple(float(v) for v in box))
+    return replace(frame, tracks=scored)

@@ -50,15 +50,16 @@ def iou_matrix(boxes_a, boxes_b) -> np.ndarray:
     return _iou(boxes_a, boxes_b)
 
 
-def matched_at_iou(boxes_a, boxes_b) -> list[tuple[int, int]]:
-    """One-to-one (Hungarian on IoU) pairs of ``a`` and ``b`` indices whose IoU reaches ``MATCH_IOU``:
-    the matching of CLEAR and Identity, used for everything here that asks "which track is this"."""
+def matched_at_iou(boxes_a, boxes_b, min_iou: float = MATCH_IOU) -> list[tuple[int, int]]:
+    """One-to-one (Hungarian on IoU) pairs of ``a`` and ``b`` indices whose IoU reaches ``min_iou``
+    (``MATCH_IOU``: the matching of CLEAR and Identity, used for everything here that asks "which
+    track is this")."""
     from scipy.optimize import linear_sum_assignment
 
     if len(boxes_a) == 0 or len(boxes_b) == 0:
         return []
     iou = iou_matrix(boxes_a, boxes_b)
-    return [(int(r), int(c)) for r, c in zip(*linear_sum_assignment(-iou)) if iou[r, c] >= MATCH_IOU]
+    return [(int(r), int(c)) for r, c in zip(*linear_sum_assignment(-iou)) if iou[r, c] >= min_iou]
 
 
 def cared_for(truth: TruthBox, min_visibility: float, min_box_px: float) -> bool:

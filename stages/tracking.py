@@ -189,7 +189,7 @@ class _TrackState:
             hits=self.hits,
             age=self.age,
             updated=self.updated,
-            detected_box=tuple(self.last_observation) if self.updated and self.last_observation is not None else None,
+            detected_box=self.last_observation if self.updated else None,
         )
 
 
