@@ -81,6 +81,10 @@ class HeightConfig:
     (``stages/mirrored_views.py``): boxes, scores, the height map and the camera heads. A second
     pass of the network a frame, for archives rather than real time; HeightNet v2 only (v1's
     mirrored reads measured real people worse). docs/results.md, 2026-12-07 thirty-ninth session."""
+    box_refiner: str = "auto"
+    """Sharper edges for the detection head's person boxes (``stages/box_refinement.py``): "auto" =
+    the shipped refiner, for the shipped v2 model it was trained on (other models' boxes stay as
+    drawn), "off" = none, or a refiner's ONNX file (heightnet/box_refiner.py), used on any model."""
     vertical_edges: bool = False
     """v2 told only the camera height: let the scene's straight lines (walls' and poles' vertical
     edges, parallel kerbs and markings) sharpen the camera heads' pitch, roll and focal length

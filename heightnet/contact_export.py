@@ -22,7 +22,7 @@ import torch
 
 from heightnet.contact_model import BIG_STRIDE, CAMERA_OUTPUTS, DETECTION_CLASSES, ContactNet
 from heightnet.contact_train import load_network
-from heightnet.export import input_metadata
+from heightnet.export import input_metadata, save_with_metadata
 from stages.heightnet_model import CONTACT_UNITS, PREVIOUS_INPUT
 
 OPSET = 17
@@ -71,7 +71,6 @@ def contact_metadata(net: ContactNet, width: int, height: int, images_seen: int,
 
 def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict[str, float]:
     """Export a training state; returns the size and ORT-vs-PyTorch differences per output."""
-    import onnx
     import onnxruntime as ort
 
     state = torch.load(state_path, map_location="cpu", weights_only=False)
@@ -97,16 +96,9 @@ def export_contact(state_path: Path, out: Path, tolerance: float = 1e-3) -> dict
     torch.onnx.export(graph, tuple(inputs.values()), str(tmp), input_names=list(inputs),
                       output_names=output_names(net), opset_version=OPSET,
                       do_constant_folding=True, dynamo=False, dynamic_axes=free)
-    model = onnx.load(str(tmp))
-    del model.metadata_props[:]
-    for key, value in contact_metadata(net, width, height, int(state["images"]),
-                                       state.get("camera_spread_scale"),
-                                       state.get("camera_error_correlation")).items():
-        entry = model.metadata_props.add()
-        entry.key, entry.value = key, value
-    onnx.checker.check_model(model)
-    onnx.save(model, str(out))
-    tmp.unlink()
+    save_with_metadata(tmp, out, contact_metadata(net, width, height, int(state["images"]),
+                                                  state.get("camera_spread_scale"),
+                                                  state.get("camera_error_correlation")))
     with torch.no_grad():
         expected = [t.numpy() for t in graph(*inputs.values())]
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])

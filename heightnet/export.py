@@ -56,8 +56,6 @@ def export_model(net: HeightNet, path: Path, input_width: int, input_height: int
                  data_hash: str = "", trained_steps: int = 0, tolerance: float = 1e-3,
                  seed: int = 0) -> ExportReport:
     """Trace ``net`` to ONNX with the contract's names and metadata, then compare ORT to PyTorch."""
-    import onnx
-
     if input_width % 16 or input_height % 16:
         raise ModelError(f"input size {input_width}x{input_height} must be a multiple of 16")
     path = Path(path)
@@ -69,21 +67,29 @@ def export_model(net: HeightNet, path: Path, input_width: int, input_height: int
     torch.onnx.export(wrapper, (example,), str(tmp), input_names=["image"],
                       output_names=["height", "ground_logit"], opset_version=OPSET,
                       do_constant_folding=True, dynamo=False)
-    model = onnx.load(str(tmp))
     metadata = contract_metadata(net, input_width, input_height, data_hash, trained_steps)
-    del model.metadata_props[:]
-    for key, value in metadata.items():
-        entry = model.metadata_props.add()
-        entry.key, entry.value = key, value
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    tmp.unlink()
+    save_with_metadata(tmp, path, metadata)
 
     diff_height, diff_ground = compare_with_onnxruntime(wrapper, path, example)
     if max(diff_height, diff_ground) > tolerance:
         raise ModelError(f"ONNX Runtime output differs from PyTorch by {max(diff_height, diff_ground):.2e} "
                          f"(> {tolerance:g}) in {path}")
     return ExportReport(path, path.stat().st_size, diff_height, diff_ground, metadata)
+
+
+def save_with_metadata(traced: Path, out: Path, metadata: dict[str, str]) -> None:
+    """Save the ONNX file ``traced`` (torch's export, then removed) as ``out`` with ``metadata`` as
+    its only metadata (what the run time reads), checked by ONNX's checker."""
+    import onnx
+
+    model = onnx.load(str(traced))
+    del model.metadata_props[:]
+    for key, value in metadata.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.checker.check_model(model)
+    onnx.save(model, str(out))
+    traced.unlink()
 
 
 def compare_with_onnxruntime(wrapper: torch.nn.Module, path: Path,

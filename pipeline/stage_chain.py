@@ -70,11 +70,14 @@ def load_height_model(config: Config) -> HeightNetModel:
     ONNX Runtime plans its memory on the first run: doing it here, before a live stream is
     opened, keeps it out of the time in which the stream's frames pile up unread.
     """
+    from stages.box_refinement import refiner_for
     from stages.heightnet_model import HeightNetModel
     from stages.network_objects import check_classes, min_score
 
     model = HeightNetModel(config.height.model, config.height.threads, min_score(config.objects),
                            config.height.input_width, mirror=config.height.mirror)
+    if model.info.detection:
+        model.box_refiner = refiner_for(config.height.box_refiner, model.path)
     if config.objects.source == "network":
         if not model.info.detection:
             raise ConfigError(f"objects.source = 'network' needs a height model with a detection head "

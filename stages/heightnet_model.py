@@ -30,7 +30,8 @@ import numpy as np
 
 from core.errors import ConfigError, ModelError
 from core.packets import CameraInfo, Frame, NetworkDetections
-from stages.centre_detections import centre_detections, in_frame, with_big_objects
+from stages.box_refinement import BoxRefiner
+from stages.centre_detections import CentreDetections, centre_detections, in_frame, with_big_objects
 from stages.mirrored_views import averaged_with_mirror, mirror_input, mirror_problem, unmirrored_outputs
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
@@ -266,6 +267,10 @@ class HeightNetModel:
     mirror : bool
         Read every image twice, as it is and mirrored, and average the two reads (a second pass
         of the network; ``stages/mirrored_views.py`` says why). v2 models only.
+
+    A run with a detection head sets ``box_refiner`` (pipeline/stage_chain.py): it moves the
+    edges of the head's boxes of its classes, read from the image the network read
+    (``stages/box_refinement.py``); None: the boxes as the head drew them.
     """
 
     def __init__(self, model_path: str | Path = "", threads: int = 0,
@@ -306,6 +311,7 @@ class HeightNetModel:
             if problem:
                 raise ConfigError(problem)
         self.mirror = mirror
+        self.box_refiner: BoxRefiner | None = None
         self._mean = np.array(self.info.mean, np.float32) * 255.0
         self._inv_std = 1.0 / (np.array(self.info.std, np.float32) * 255.0)
         self._cached_index: int | None = None
@@ -350,13 +356,17 @@ class HeightNetModel:
         self.output_names = list(expected_outputs)
 
     def preprocess(self, image_bgr: np.ndarray) -> np.ndarray:
-        """The 1 x 3 x H x W input: resized, channels in the model's order, normalised.
+        """The 1 x 3 x H x W input: resized, channels in the model's order, normalised."""
+        return self._tensor(self._resized(image_bgr))
 
-        Written plane by plane into the tensor, so no interleaved float copy is made and
-        transposed (640x360: 1.9 -> 0.9 ms per frame; the same float32 arithmetic).
-        """
-        small = cv2.resize(image_bgr, (self.info.input_width, self.info.input_height),
-                           interpolation=cv2.INTER_AREA)
+    def _resized(self, image_bgr: np.ndarray) -> np.ndarray:
+        """The image squashed to the input size: what the network (and the box refiner) read."""
+        return cv2.resize(image_bgr, (self.info.input_width, self.info.input_height), interpolation=cv2.INTER_AREA)
+
+    def _tensor(self, small: np.ndarray) -> np.ndarray:
+        """The network's input from the resized image, written plane by plane into the tensor,
+        so no interleaved float copy is made and transposed (640x360: 1.9 -> 0.9 ms per frame;
+        the same float32 arithmetic)."""
         channels = (2, 1, 0) if self.info.color_order == "RGB" else (0, 1, 2)
         tensor = np.empty((1, 3, *small.shape[:2]), np.float32)
         for plane, channel in enumerate(channels):
@@ -369,8 +379,9 @@ class HeightNetModel:
         that reads motion gets the last frame this ran on as the one before (on the first, itself)."""
         if self._cached_index == frame.index and self._cached is not None:
             return self._cached
-        tensor = self.preprocess(frame.image)
-        self._cached = self._outputs(tensor, self._last_input, frame.image.shape[:2])
+        small = self._resized(frame.image)
+        tensor = self._tensor(small)
+        self._cached = self._outputs(tensor, self._last_input, frame.image.shape[:2], small)
         self._last_input = tensor if self.takes_previous else None
         self._cached_index = frame.index
         return self._cached
@@ -378,11 +389,13 @@ class HeightNetModel:
     def run(self, image_bgr: np.ndarray) -> ModelOutput:
         """The network on one image alone (no cache, no frame before: a motion-reading head sees
         no change); outputs as ``ModelOutput`` describes."""
-        return self._outputs(self.preprocess(image_bgr), None, image_bgr.shape[:2])
+        small = self._resized(image_bgr)
+        return self._outputs(self._tensor(small), None, image_bgr.shape[:2], small)
 
-    def _outputs(self, tensor: np.ndarray, previous: np.ndarray | None, frame_shape: tuple[int, int]) -> ModelOutput:
-        """The network on one prepared input (``previous``: the frame before, None = no change),
-        its outputs at ``frame_shape`` (rows, columns)."""
+    def _outputs(self, tensor: np.ndarray, previous: np.ndarray | None, frame_shape: tuple[int, int],
+                 small: np.ndarray) -> ModelOutput:
+        """The network on one prepared input (``previous``: the frame before, None = no change;
+        ``small``: the image it was prepared from), its outputs at ``frame_shape`` (rows, columns)."""
         named = self._run(tensor, previous)
         if self.mirror:
             mirror_read = self._run(mirror_input(tensor), None if previous is None else mirror_input(previous))
@@ -391,7 +404,7 @@ class HeightNetModel:
         logit_full = cv2.resize(named["ground_logit"][0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
         if self.info.contact:
             return ModelOutput(None, logit_full, offsets=named["offsets"][0].transpose(1, 2, 0),
-                               camera=named["camera"][0], detections=self._detections(named, (w, h)))
+                               camera=named["camera"][0], detections=self._detections(named, (w, h), small))
         height_full = cv2.resize(named["height"][0, 0], (w, h), interpolation=cv2.INTER_LINEAR)
         return ModelOutput(np.maximum(height_full, 0.0, out=height_full), logit_full)
 
@@ -402,8 +415,10 @@ class HeightNetModel:
             feed[PREVIOUS_INPUT] = tensor if previous is None else previous
         return dict(zip(self.output_names, self.session.run(self.output_names, feed)))
 
-    def _detections(self, named: dict[str, np.ndarray], frame_size: tuple[int, int]) -> NetworkDetections | None:
-        """The detection head's peaks in frame pixels (None without a head)."""
+    def _detections(self, named: dict[str, np.ndarray], frame_size: tuple[int, int],
+                    small: np.ndarray) -> NetworkDetections | None:
+        """The detection head's peaks in frame pixels, their boxes refined where a refiner is
+        given (None without a head)."""
         if not self.info.detection:
             return None
         found = centre_detections(named["centre_logit"][0], named["box"][0], self.info.detection_stride,
@@ -412,6 +427,9 @@ class HeightNetModel:
             found = with_big_objects(found, named["big_centre_logit"][0], named["big_box"][0],
                                      self.info.big_detection_stride, self.detection_min_score,
                                      CONSTANTS.big_min_height_px, CONSTANTS.max_detections)
+        if self.box_refiner is not None and len(found):
+            names = [self.info.detection_classes[int(c)] for c in found.classes]
+            found = CentreDetections(self.box_refiner.refine(small, found.boxes, names), found.classes, found.scores)
         return in_frame(found, self.info.detection_classes,
                         (self.info.input_width, self.info.input_height), frame_size,
                         big_objects=bool(self.info.big_detection_stride))

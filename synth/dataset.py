@@ -112,15 +112,24 @@ class SynthSequence:
                 self._bg = z["depth"].astype(np.float32)
         return self._bg
 
-    def frame(self, i: int) -> SynthFrame:
+    def image_bgr(self, i: int) -> np.ndarray:
+        """Frame ``i``'s picture alone (BGR, as OpenCV reads it), without its label maps: what a
+        camera would have given."""
         import cv2
 
         if not 0 <= i < len(self):
             raise IndexError(f"frame {i} out of range 0..{len(self) - 1}")
-        stem = f"{i:06d}"
-        bgr = cv2.imread(str(self.path / "rgb" / f"{stem}.{self._rgb_ext}"), cv2.IMREAD_COLOR)
+        path = self.path / "rgb" / f"{i:06d}.{self._rgb_ext}"
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if bgr is None:
-            raise FileNotFoundError(self.path / "rgb" / f"{stem}.{self._rgb_ext}")
+            raise FileNotFoundError(path)
+        return bgr
+
+    def frame(self, i: int) -> SynthFrame:
+        import cv2
+
+        stem = f"{i:06d}"
+        bgr = self.image_bgr(i)
         instance = cv2.imread(str(self.path / "instance" / f"{stem}.png"), cv2.IMREAD_UNCHANGED).astype(np.uint16)
         semantic = cv2.imread(str(self.path / "semantic" / f"{stem}.png"), cv2.IMREAD_UNCHANGED).astype(np.uint8)
         bg = self.bg_depth_m

@@ -61,3 +61,16 @@ def test_two_heads_merge_strongest_first_and_short_boxes_can_be_dropped():
     tall = at_least_tall(big, 64)
     assert len(tall) == 1 and tall.boxes[0].tolist() == [0, 0, 80, 100]
     assert len(merged(small, at_least_tall(big, 200))) == 2
+
+
+@pytest.mark.parametrize("shape", [(3, 90, 160), (1, 1, 1), (2, 5, 2)])
+def test_a_peak_is_the_largest_of_its_3x3_cells_in_its_own_class(shape):
+    # OpenCV's dilation, a class at a time, gives what SciPy's 3x3 maximum filter gave (cells
+    # past the border count as nothing); plateaus stay peaks.
+    from scipy import ndimage
+
+    from stages.centre_detections import _neighbourhood_max
+
+    prob = np.random.default_rng(0).random(shape).astype(np.float32).round(1)
+    expected = ndimage.maximum_filter(prob, size=(1, 3, 3), mode="constant", cval=0.0)
+    np.testing.assert_array_equal(_neighbourhood_max(prob), expected)

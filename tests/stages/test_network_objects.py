@@ -301,10 +301,11 @@ def test_the_height_comes_from_the_box_pixels_above_the_ground():
     # Robust top of the box's own pixels: 1.70 m at the crown, plus half the step to the row below.
     assert detection.height() == pytest.approx(1.70 + 0.5 * 1.65 / 59, abs=0.002)
     assert detection.heights[NETWORK].source == "objects" and 0 < detection.heights[NETWORK].noise_m < 0.5
-    # The box is the pixels the network's box covers; the ends are its own (sub-pixel) top and bottom.
-    assert detection.box == (35.0, 57.0, 30.0, 64.0)
+    # The box is the network's box to the nearest pixel edges (the truth's boxes are pixel extents);
+    # the ends are its own (sub-pixel) top and bottom.
+    assert detection.box == (36.0, 58.0, 28.0, 62.0)
     assert detection.foot_xy == pytest.approx((50.0, 120.2)) and detection.top_xy == pytest.approx((50.0, 57.7))
-    assert detection.mask.shape == (64, 30) and detection.mask.sum() == 1450   # 1160 of the person, 290 of the wall
+    assert detection.mask.shape == (62, 28) and detection.mask.sum() == 1376   # 1160 of the person, 216 of the wall
     assert (detection.cls, detection.cls_source) == ("cyclist", "network")      # the network's class
     assert not (detection.touches_border or detection.foot_cut or detection.top_cut)
 
