@@ -142,7 +142,8 @@ def network_objects(found: NetworkDetections | None, config: ObjectsConfig, heig
         clipped = np.clip(np.asarray(box, float), 0.0, [frame_w, frame_h, frame_w, frame_h])
         # The pixels the box covers: its edges to the nearest pixel edge, as the truth's boxes
         # are pixel extents (rounded outward, every box grew by a pixel in each direction on
-        # average; held-out HOTA a little lower, 0.548 against 0.550: docs/results.md 2026-12-07).
+        # average: held-out HOTA 0.548 against 0.550, and with the box refiner dev2 0.507 against
+        # 0.514; docs/results.md, 2026-12-08).
         x0, y0 = int(np.rint(clipped[0])), int(np.rint(clipped[1]))
         x1, y1 = int(np.rint(clipped[2])), int(np.rint(clipped[3]))
         if x1 <= x0 or y1 <= y0:
