@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("data", type=Path, nargs="+", help="synth datasets (their training-split sequences)")
     parser.add_argument("--out", type=Path, required=True, help="the refiner's ONNX file")
     parser.add_argument("--model", default="v2", help="the detection model whose boxes it refines (default: v2)")
-    parser.add_argument("--epochs", type=int, default=12)
+    parser.add_argument("--epochs", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--check", type=Path, action="append", default=[],
                         help="synth dataset whose sequences (any split) report the edges before and after")

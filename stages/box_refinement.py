@@ -14,8 +14,8 @@ network's input around each box, resampled so that every box fills it alike (the
 ``margin`` of its width at each side and of its height above and below), with the box's size in
 input pixels, and says how far each edge lies from the truth, in shares of the box's width
 (left, right) and height (top, bottom). On held-out sequences it took the head's people's edges
-from 1.71 to 1.26 pixels off (mean of the four; trk_test40 HOTA 0.548 -> 0.597, people's tracked
-heights 10.1 -> 6.1 cm).
+from 1.71 to 1.21 pixels off (mean of the four; trk_test40 HOTA 0.548 -> 0.598, people's tracked
+heights 10.1 -> 6.6 cm).
 
 It runs on each frame's person boxes after the network, on the image the network read (a crop
 of the frame itself would hold detail the refiner never saw in training). Its ONNX file carries
