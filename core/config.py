@@ -82,7 +82,8 @@ class HeightConfig:
     pass of the network a frame, for archives rather than real time; HeightNet v2 only (v1's
     mirrored reads measured real people worse). docs/results.md, 2026-12-07 thirty-ninth session."""
     box_refiner: str = "auto"
-    """Sharper edges for the detection head's person boxes (``stages/box_refinement.py``): "auto" =
+    """Network mode (``objects.source = "network"``): sharper edges for the detection head's person
+    boxes (``stages/box_refinement.py``): "auto" =
     the shipped refiner, for the shipped v2 model it was trained on (other models' boxes stay as
     drawn), "off" = none, or a refiner's ONNX file (heightnet/box_refiner.py), used on any model."""
     vertical_edges: bool = False

@@ -142,22 +142,16 @@ def nudged(boxes: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def batch_tensors(samples: RefinerSamples, rows: np.ndarray, boxes: np.ndarray, mirror: np.ndarray):
-    """The refiner's inputs, targets and box sizes for ``rows`` read at ``boxes``; rows flagged in
-    ``mirror`` are read from the mirrored image (their left and right edges swap)."""
-    crops, targets, read_at = [], [], []
-    for row, box, flip in zip(rows, boxes, mirror):
-        image, truth = samples.images[samples.image_index[row]], samples.truth[row]
-        if flip:
-            width = image.shape[1]
-            image = image[:, ::-1]
-            box = np.array([width - box[2], box[1], width - box[0], box[3]], np.float32)
-            truth = np.array([width - truth[2], truth[1], width - truth[0], truth[3]], np.float32)
-        crops.append(box_crops(np.ascontiguousarray(image), box[None], CROP_SIZE, MARGIN)[0])
-        targets.append(edge_targets(box[None], truth[None])[0])
-        read_at.append(box)
-    boxes = np.stack(read_at).astype(np.float32)
-    pixels, sizes = refiner_inputs(np.stack(crops), boxes)
-    return torch.from_numpy(pixels), torch.from_numpy(sizes), torch.from_numpy(np.stack(targets)), boxes
+    """The refiner's inputs and targets for ``rows`` read at ``boxes``; rows flagged in ``mirror``
+    are read as from the mirrored image: ``box_crops`` maps pixel centres, so that crop is this one
+    flipped, and the box's left and right edges swap (each target negated)."""
+    crops = np.stack([box_crops(samples.images[samples.image_index[row]], box[None], CROP_SIZE, MARGIN)[0]
+                      for row, box in zip(rows, boxes)])
+    targets = edge_targets(boxes, samples.truth[rows])
+    crops[mirror] = crops[mirror][:, :, ::-1]
+    targets[mirror] = targets[mirror][:, [2, 1, 0, 3]] * np.array([-1, 1, -1, 1], np.float32)
+    pixels, sizes = refiner_inputs(crops, boxes)
+    return torch.from_numpy(pixels), torch.from_numpy(sizes), torch.from_numpy(targets)
 
 
 def pixel_error(edges: torch.Tensor, targets: torch.Tensor, boxes: np.ndarray) -> torch.Tensor:
@@ -185,7 +179,7 @@ def train_refiner(samples: RefinerSamples, epochs: int, seed: int, batch: int = 
         for start in range(0, len(order), batch):
             rows = order[start:start + batch]
             boxes = nudged(samples.head[rows], rng)
-            pixels, sizes, targets, boxes = batch_tensors(samples, rows, boxes, rng.random(len(rows)) < 0.5)
+            pixels, sizes, targets = batch_tensors(samples, rows, boxes, rng.random(len(rows)) < 0.5)
             loss = pixel_error(net(pixels, sizes), targets, boxes).mean()
             optimiser.zero_grad()
             loss.backward()
@@ -201,7 +195,8 @@ def edge_errors(net: BoxRefinerNet, samples: RefinerSamples) -> tuple[np.ndarray
     """Mean |error| of each edge (left, top, right, bottom; input pixels) of the samples' boxes as
     the head drew them and as refined."""
     rows = np.arange(len(samples))
-    pixels, sizes, targets, boxes = batch_tensors(samples, rows, samples.head.copy(), np.zeros(len(rows), bool))
+    boxes = samples.head
+    pixels, sizes, targets = batch_tensors(samples, rows, boxes, np.zeros(len(rows), bool))
     with torch.no_grad():
         refined = pixel_error(net(pixels, sizes), targets, boxes).mean(0).numpy()
     head = pixel_error(torch.zeros_like(targets), targets, boxes).mean(0).numpy()

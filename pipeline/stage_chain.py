@@ -76,13 +76,13 @@ def load_height_model(config: Config) -> HeightNetModel:
 
     model = HeightNetModel(config.height.model, config.height.threads, min_score(config.objects),
                            config.height.input_width, mirror=config.height.mirror)
-    if model.info.detection:
-        model.box_refiner = refiner_for(config.height.box_refiner, model.path)
     if config.objects.source == "network":
         if not model.info.detection:
             raise ConfigError(f"objects.source = 'network' needs a height model with a detection head "
                               f"(a v2 export trained with detection = true); {model.path} has none")
         check_classes(config.objects, model.info.detection_classes, str(model.path))
+        # Only the network's objects read its boxes: in blobs mode refining them is work for nothing.
+        model.box_refiner = refiner_for(config.height.box_refiner, model.path)
     model.run(np.zeros((model.info.input_height, model.info.input_width, 3), np.uint8))
     return model
 

@@ -268,9 +268,9 @@ class HeightNetModel:
         Read every image twice, as it is and mirrored, and average the two reads (a second pass
         of the network; ``stages/mirrored_views.py`` says why). v2 models only.
 
-    A run with a detection head sets ``box_refiner`` (pipeline/stage_chain.py): it moves the
-    edges of the head's boxes of its classes, read from the image the network read
-    (``stages/box_refinement.py``); None: the boxes as the head drew them.
+    A run whose objects come from the detection head sets ``box_refiner`` (pipeline/stage_chain.py,
+    ``objects.source = "network"``): it moves the edges of the head's boxes of its classes, read
+    from the image the network read (``stages/box_refinement.py``); None: the boxes as drawn.
     """
 
     def __init__(self, model_path: str | Path = "", threads: int = 0,

@@ -114,11 +114,14 @@ def test_the_model_refines_its_person_boxes_from_the_image_it_read(tmp_path):
     np.testing.assert_array_equal(refined.boxes[~people], plain.boxes[~people])
 
 
-def test_a_run_refines_the_shipped_v2_by_default_and_never_v1():
+def test_a_network_mode_run_refines_the_shipped_v2_by_default_and_no_other_run_does():
     from core.config import load_config
     from pipeline.stage_chain import load_height_model
 
-    v2 = load_height_model(load_config(None, ["height.model=v2"]))
+    network = ["height.model=v2", "objects.source=network"]
+    v2 = load_height_model(load_config(None, network))
     assert (v2.box_refiner is not None) == SHIPPED_REFINER.is_file()
-    assert load_height_model(load_config(None, ["height.model=v2", "height.box_refiner=off"])).box_refiner is None
+    assert load_height_model(load_config(None, [*network, "height.box_refiner=off"])).box_refiner is None
+    # Blobs mode reads no network box: nothing to refine.
+    assert load_height_model(load_config(None, ["height.model=v2"])).box_refiner is None
     assert load_height_model(load_config(None, ["height.model=v1"])).box_refiner is None
