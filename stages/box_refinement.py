@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from core.errors import ConfigError, ModelError
+from stages.onnx_session import cpu_session
 
 SHIPPED_REFINER = Path(__file__).resolve().parent / "models" / "box_refiner.onnx"
 """The refiner trained on the shipped HeightNet v2's boxes (``height.box_refiner = "auto"``)."""
@@ -106,20 +107,10 @@ class BoxRefiner:
     on the network's thread, a few crops a frame)."""
 
     def __init__(self, path: str | Path):
-        import onnxruntime as ort
-
         self.path = Path(path)
         if not self.path.is_file():
             raise ModelError(f"box refiner not found: {self.path}")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = 1
-        options.inter_op_num_threads = 1
-        options.log_severity_level = 3
-        try:
-            self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own untyped errors for bad files
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ModelError(f"{self.path} is not a loadable ONNX model: {first[:200]}") from None
+        self.session = cpu_session(self.path, threads=1)
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.crop_size = tuple(int(v) for v in json.loads(meta["heightpipe.crop_size"]))

@@ -33,6 +33,7 @@ from core.packets import CameraInfo, Frame, NetworkDetections
 from stages.box_refinement import BoxRefiner
 from stages.centre_detections import CentreDetections, centre_detections, in_frame, with_big_objects
 from stages.mirrored_views import averaged_with_mirror, mirror_input, mirror_problem, unmirrored_outputs
+from stages.onnx_session import cpu_session
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "models" / "heightnet.onnx"
 SHIPPED_INT8_MODEL = SHIPPED_MODEL.with_name("heightnet_int8.onnx")
@@ -287,7 +288,7 @@ class HeightNetModel:
         self.path = path
         self.detection_min_score = detection_min_score
         first_threads = threads or CONSTANTS.auto_threads_v1
-        self.session = _session(path, first_threads)
+        self.session = cpu_session(path, first_threads)
         self.info = _read_info(path, self.session.get_modelmeta().custom_metadata_map)
         self.threads = threads or _auto_threads(self.info)
         free = [dim for dim in self.session.get_inputs()[0].shape[2:] if not isinstance(dim, int)]
@@ -295,12 +296,12 @@ class HeightNetModel:
             # A free input size: fixed here, at the trained size or the one asked for.
             width, height = input_size(self.info, input_width)
             self.info = dataclasses.replace(self.info, input_width=width, input_height=height)
-            self.session = _session(path, self.threads, dict(zip(free, (height, width))))
+            self.session = cpu_session(path, self.threads, dict(zip(free, (height, width))))
         elif input_width and input_size(self.info, input_width) != (self.info.input_width, self.info.input_height):
             raise ModelError(f"{path} takes only its fixed {self.info.input_width}x{self.info.input_height} "
                              f"input, not {input_width} wide (a v2 export by heightpipe export takes any width)")
         elif self.threads != first_threads:
-            self.session = _session(path, self.threads)
+            self.session = cpu_session(path, self.threads)
         self._check_signature()
         if mirror:
             if not self.info.contact:
@@ -469,27 +470,6 @@ def _auto_threads(info: ModelInfo) -> int:
 def cores() -> int:
     """The cores this process may run on (its affinity, where the system tells it)."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
-def _session(path: Path, threads: int, sizes: dict[str, int] | None = None):
-    """An ONNX Runtime CPU session; ``sizes`` fixes the model's free dimensions by name."""
-    import onnxruntime as ort
-
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
-    # ONNX Runtime's pool threads busy-wait for the next piece of work by default: on two
-    # cores the second thread then burns a core the other stages need (sample, 2 threads:
-    # 41 ms of CPU per run spinning, 23 ms not, 21 ms with one thread; outputs identical).
-    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    options.log_severity_level = 3
-    for name, size in (sizes or {}).items():
-        options.add_free_dimension_override_by_name(name, size)
-    try:
-        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    except Exception as exc:  # onnxruntime raises its own untyped errors for bad files
-        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ModelError(f"{path} is not a loadable ONNX model: {first_line[:200]}") from None
 
 
 def _sigmoid(logit: np.ndarray) -> np.ndarray:
